@@ -1,0 +1,159 @@
+//! The one error type of the crate.
+//!
+//! Every variant carries the file it is about (the path, or the name given to a `decode_*`
+//! function) and its message says what was wrong and where: the header field, the byte count, the
+//! voxel.
+
+use incise_grid::VolumeError;
+use thiserror::Error;
+
+/// Why a label volume could not be read or written.
+#[derive(Debug, Error)]
+pub enum IoError {
+    /// The operating system refused a read or write, or a gzip stream is corrupt.
+    #[error("{file}: {source}")]
+    Io {
+        /// The file.
+        file: String,
+        /// What the operating system or the gzip decoder reported.
+        source: std::io::Error,
+    },
+    /// The file ends before the part its header announces.
+    #[error("{file}: data truncated: needs {} bytes of {what}, file holds {}", grouped(*.expected), grouped(*.found))]
+    Truncated {
+        /// The file.
+        file: String,
+        /// The part that is cut short ("voxels (438×353×165 uint8)", "NIfTI-1 header", …).
+        what: String,
+        /// Bytes that part needs.
+        expected: u64,
+        /// Bytes the file holds for it.
+        found: u64,
+    },
+    /// A header that is malformed: a wrong magic number, a field that does not parse or is out of
+    /// range.
+    #[error("{file}: {what}")]
+    BadHeader {
+        /// The file.
+        file: String,
+        /// The field and what is wrong with it.
+        what: String,
+    },
+    /// A well-formed header describing something this crate does not read (a voxel type, a
+    /// two-file NIfTI, a 4-D series) or a volume the format cannot hold.
+    #[error("{file}: unsupported: {what}")]
+    UnsupportedType {
+        /// The file.
+        file: String,
+        /// What is not supported.
+        what: String,
+    },
+    /// Header fields that disagree with each other or with the file's length (bitpix against
+    /// datatype, a header not ending on a 256-byte boundary, bytes after the voxels).
+    #[error("{file}: header and sizes disagree: {what}")]
+    HeaderSizeMismatch {
+        /// The file.
+        file: String,
+        /// Which sizes disagree, with their values.
+        what: String,
+    },
+    /// A voxel value that is not a tissue label (an integer in `0..=65535`).
+    #[error(
+        "{file}: voxel {voxel} holds {value}, which is not a tissue label (an integer in 0..=65535)"
+    )]
+    BadLabel {
+        /// The file.
+        file: String,
+        /// Linear index of the voxel, `x` fastest.
+        voxel: usize,
+        /// The value found (and how it was computed when the header scales values).
+        value: String,
+    },
+    /// Units or an orientation from which no voxel spacing or direction follows (a zero-length
+    /// or sheared `sform` axis, an unknown unit code).
+    #[error("{file}: bad voxel spacing or orientation: {what}")]
+    BadSpacing {
+        /// The file.
+        file: String,
+        /// The field and what is wrong with it.
+        what: String,
+    },
+    /// The decoded extent, spacing or placement is refused by [`incise_grid::LabelVolume`]
+    /// (a spacing of zero, an extent beyond 2^20).
+    #[error("{file}: {source}")]
+    Volume {
+        /// The file.
+        file: String,
+        /// Why the volume was refused.
+        source: VolumeError,
+    },
+    /// Neither the extension nor the content names a format this crate reads.
+    #[error(
+        "{file}: unknown format: the name does not end in .nii, .nii.gz, .inr or .inr.gz and the \
+         content is neither NIfTI-1 nor INRIMAGE-4"
+    )]
+    UnknownFormat {
+        /// The file.
+        file: String,
+    },
+}
+
+impl IoError {
+    /// The file (path or in-memory name) the error is about.
+    #[must_use]
+    pub fn file(&self) -> &str {
+        match self {
+            Self::Io { file, .. }
+            | Self::Truncated { file, .. }
+            | Self::BadHeader { file, .. }
+            | Self::UnsupportedType { file, .. }
+            | Self::HeaderSizeMismatch { file, .. }
+            | Self::BadLabel { file, .. }
+            | Self::BadSpacing { file, .. }
+            | Self::Volume { file, .. }
+            | Self::UnknownFormat { file } => file,
+        }
+    }
+}
+
+/// `n` with thousands separators, because byte counts of volumes run to eight digits.
+pub(crate) fn grouped(n: u64) -> String {
+    let digits = n.to_string();
+    let mut out = String::with_capacity(digits.len() + digits.len() / 3);
+    for (i, ch) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(ch);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grouped_inserts_separators() {
+        assert_eq!(grouped(0), "0");
+        assert_eq!(grouped(999), "999");
+        assert_eq!(grouped(1000), "1,000");
+        assert_eq!(grouped(25_511_310), "25,511,310");
+        assert_eq!(grouped(u64::MAX), "18,446,744,073,709,551,615");
+    }
+
+    #[test]
+    fn truncated_message_reads_naturally() {
+        let e = IoError::Truncated {
+            file: "scan.nii.gz".into(),
+            what: "voxels".into(),
+            expected: 25_511_310,
+            found: 1000,
+        };
+        assert_eq!(
+            e.to_string(),
+            "scan.nii.gz: data truncated: needs 25,511,310 bytes of voxels, file holds 1,000"
+        );
+        assert_eq!(e.file(), "scan.nii.gz");
+    }
+}

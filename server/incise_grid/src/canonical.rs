@@ -118,7 +118,7 @@ pub fn compare_grids(a: &BranchedGrid, b: &BranchedGrid, rel_tol: f64) -> Result
             return Err(d);
         }
     }
-    if a.fine() != b.fine() {
+    if !a.fine().same_material_and_links(b.fine()) {
         return Err("fine levels differ".into());
     }
     let by_key = |g: &BranchedGrid| -> BTreeMap<u32, u32> { g.top().elements().map(|(id, e)| (e.min_voxel, id)).collect() };

@@ -126,6 +126,12 @@ impl FineLevel {
         })
     }
 
+    /// True when both hold the same voxels and severed links (parents, which name elements, aside).
+    #[must_use]
+    pub fn same_material_and_links(&self, other: &Self) -> bool {
+        self.dims == other.dims && self.material == other.material && self.severed == other.severed
+    }
+
     /// Number of voxels with material.
     #[must_use]
     pub fn voxel_count(&self) -> usize {

@@ -1,1 +1,31 @@
-fn main() {}
+//! `incise-bench`: the reports that measure incise. Each prints a table a person can read and,
+//! with `--json`, ends with one line holding one JSON object for scripts.
+
+mod grid_report;
+mod progress;
+mod stroke;
+mod timing;
+
+use clap::{Parser, Subcommand};
+
+/// Benchmarks and reports for incise (release build recommended: `cargo run --release -p incise_bench -- …`).
+#[derive(Parser, Debug)]
+#[command(name = "incise-bench", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Dynamic Branched Grid report: per-level element and node counts, build time, direct vs
+    /// recursive condensation, and a 500-voxel cut stroke updated incrementally vs rebuilt.
+    Grid(grid_report::GridArgs),
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Grid(args) => grid_report::run(&args),
+    }
+}

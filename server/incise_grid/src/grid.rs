@@ -15,6 +15,7 @@ use crate::material::{Material, MaterialTable};
 use crate::topology::{FineLevel, Level, LevelChanges, NONE, coords};
 use crate::volume::LabelVolume;
 use incise_math::{Vec3, morton_encode};
+use std::sync::Arc;
 
 /// Deepest supported level: a level-6 cell holds 262,144 voxels and its product table 1.2 GB.
 pub const MAX_LEVELS: u32 = 5;
@@ -87,7 +88,7 @@ pub struct BranchedGrid {
     fine: FineLevel,
     levels: Vec<Level>,
     top_level: u32,
-    tables: CondensationTables,
+    tables: Arc<CondensationTables>,
     matrices: Vec<Option<ElementMatrices>>,
 }
 
@@ -145,7 +146,7 @@ impl BranchedGrid {
             }
             v
         };
-        let tables = CondensationTables::new(spacing, &materials, top_level);
+        let tables = Arc::new(CondensationTables::new(spacing, &materials, top_level));
         let all: Vec<u32> = (0..fine.material.len() as u32).filter(|&v| fine.material[v as usize] != 0).collect();
         let mut grid = Self { spacing, origin, direction, materials, material_labels, fine, levels, top_level, tables, matrices: Vec::new() };
         grid.update_levels(&all);

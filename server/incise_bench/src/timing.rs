@@ -1,0 +1,29 @@
+//! Repeated timings and their median / min / max.
+
+use std::time::Instant;
+
+/// Timings of one measured operation, in milliseconds.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Timing {
+    pub median_ms: f64,
+    pub min_ms: f64,
+    pub max_ms: f64,
+    pub repeats: usize,
+}
+
+/// Runs `prepare` (untimed) then `f` (timed) `repeats` times; returns the timings and the last
+/// result of `f`.
+pub fn measure<S, T>(repeats: usize, mut prepare: impl FnMut() -> S, mut f: impl FnMut(S) -> T) -> (Timing, T) {
+    let mut times = Vec::with_capacity(repeats);
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let input = prepare();
+        let start = Instant::now();
+        let out = f(input);
+        times.push(start.elapsed().as_secs_f64() * 1e3);
+        last = Some(out);
+    }
+    times.sort_by(f64::total_cmp);
+    let timing = Timing { median_ms: times[times.len() / 2], min_ms: times[0], max_ms: times[times.len() - 1], repeats: times.len() };
+    (timing, last.expect("at least one repeat"))
+}

@@ -60,7 +60,10 @@ fn parse_stride(s: &str) -> Result<[usize; 3], String> {
     }
     let mut out = [0; 3];
     for (o, p) in out.iter_mut().zip(parts) {
-        *o = p.trim().parse().map_err(|_| format!("stride component '{p}' is not a positive integer"))?;
+        *o = p
+            .trim()
+            .parse()
+            .map_err(|_| format!("stride component '{p}' is not a positive integer"))?;
         if *o == 0 {
             return Err("stride components must be at least 1".into());
         }
@@ -117,28 +120,33 @@ struct Report {
 
 /// Loads, filters, crops and strides the volume, and picks materials for its labels.
 fn prepare(args: &GridArgs) -> anyhow::Result<(String, LabelVolume, MaterialTable)> {
-    let (name, raw, mut table) = match &args.volume {
-        Some(path) => {
-            let v = incise_io::read_volume(path)?;
-            (path.display().to_string(), v, MaterialTable::abdominal_ct())
-        }
-        None => {
-            let v = ellipsoid_with_inclusion(args.procedural_size, 2.5e-3);
-            let mut t = MaterialTable::new();
-            t.insert(TISSUE, Material::liver());
-            t.insert(TUMOUR, Material { youngs_modulus: 45_000.0, ..Material::liver() });
-            (format!("procedural ellipsoid with tumour ({} voxels along x)", args.procedural_size), v, t)
-        }
+    let (name, raw, mut table) = if let Some(path) = &args.volume {
+        let v = incise_io::read_volume(path)?;
+        (path.display().to_string(), v, MaterialTable::abdominal_ct())
+    } else {
+        let v = ellipsoid_with_inclusion(args.procedural_size, 2.5e-3);
+        let mut t = MaterialTable::new();
+        t.insert(TISSUE, Material::liver());
+        t.insert(TUMOUR, Material { youngs_modulus: 45_000.0, ..Material::liver() });
+        (
+            format!("procedural ellipsoid with tumour ({} voxels along x)", args.procedural_size),
+            v,
+            t,
+        )
     };
     let mut filter = LabelFilter::abdominal_ct();
     if !args.labels.is_empty() {
         filter = filter.keep(&args.labels);
     }
     let filtered = raw.filtered(&filter);
-    let volume = filtered.crop_and_stride(args.stride).with_context(|| format!("{name}: cropping with stride {:?}", args.stride))?;
+    let volume = filtered
+        .crop_and_stride(args.stride)
+        .with_context(|| format!("{name}: cropping with stride {:?}", args.stride))?;
     for (label, count) in volume.histogram() {
         if label != 0 && table.get(label).is_none() {
-            eprintln!("note: label {label} ({count} voxels) has no preset material; using liver tissue");
+            eprintln!(
+                "note: label {label} ({count} voxels) has no preset material; using liver tissue"
+            );
             table.insert(label, Material::liver());
         }
     }
@@ -149,7 +157,7 @@ fn fmt_count(n: usize) -> String {
     let s = n.to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {
-        if i > 0 && (s.len() - i) % 3 == 0 {
+        if i > 0 && (s.len() - i).is_multiple_of(3) {
             out.push(',');
         }
         out.push(c);
@@ -160,7 +168,11 @@ fn fmt_count(n: usize) -> String {
 /// Runs the report.
 pub fn run(args: &GridArgs) -> anyhow::Result<()> {
     if args.levels > incise_grid::grid::MAX_LEVELS {
-        bail!("--levels {} is above the supported maximum {}", args.levels, incise_grid::grid::MAX_LEVELS);
+        bail!(
+            "--levels {} is above the supported maximum {}",
+            args.levels,
+            incise_grid::grid::MAX_LEVELS
+        );
     }
     let repeats = args.repeats.max(1);
     let bar = progress::stages(7);
@@ -173,11 +185,16 @@ pub fn run(args: &GridArgs) -> anyhow::Result<()> {
 
     bar.set_message("condensation tables");
     let mats: Vec<Material> = table.iter().map(|(_, m)| *m).collect();
-    let (tables, _) = measure(repeats, || (), |()| incise_grid::condense::CondensationTables::new(volume.spacing(), &mats, args.levels));
+    let (tables, _) = measure(
+        repeats,
+        || (),
+        |()| incise_grid::condense::CondensationTables::new(volume.spacing(), &mats, args.levels),
+    );
     bar.inc(1);
 
     bar.set_message("building the grid");
-    let (build, grid) = measure(repeats, || (), |()| BranchedGrid::build(&volume, &table, args.levels));
+    let (build, grid) =
+        measure(repeats, || (), |()| BranchedGrid::build(&volume, &table, args.levels));
     let grid = grid.with_context(|| format!("{name}: building the grid"))?;
     bar.inc(1);
 
@@ -198,8 +215,11 @@ pub fn run(args: &GridArgs) -> anyhow::Result<()> {
 
     bar.set_message("direct vs recursive condensation");
     let ids: Vec<u32> = grid.top().elements().map(|(id, _)| id).collect();
-    let (direct, steps) =
-        measure(repeats, || (), |()| ids.iter().map(|&id| grid.condense_direct_with_steps(id).2).sum::<usize>());
+    let (direct, steps) = measure(
+        repeats,
+        || (),
+        |()| ids.iter().map(|&id| grid.condense_direct_with_steps(id).2).sum::<usize>(),
+    );
     let (recursive, rec) = measure(repeats.div_ceil(3), || (), |()| grid.condense_recursive());
     let mut max_diff = 0.0f64;
     for &id in &ids {
@@ -214,10 +234,14 @@ pub fn run(args: &GridArgs) -> anyhow::Result<()> {
     bar.set_message("cut stroke: incremental update vs rebuild");
     let stroke = blade_stroke(&grid, args.cut_voxels);
     let edit = GridEdit { remove_voxels: stroke.clone(), sever_links: vec![] };
-    let (update, (cut_grid, changes)) = measure(repeats, || grid.clone(), |mut g| {
-        let c = g.apply(&edit);
-        (g, c)
-    });
+    let (update, (cut_grid, changes)) = measure(
+        repeats,
+        || grid.clone(),
+        |mut g| {
+            let c = g.apply(&edit);
+            (g, c)
+        },
+    );
     let changes = changes?;
     let (rebuild, rebuilt) = measure(repeats, || (), |()| cut_grid.rebuild());
     let cmp = compare_grids(&cut_grid, &rebuilt, 1e-12);
@@ -229,10 +253,14 @@ pub fn run(args: &GridArgs) -> anyhow::Result<()> {
     bar.set_message("separation-mode stroke");
     let links = blade_links(&grid, &stroke);
     let sever = GridEdit { remove_voxels: vec![], sever_links: links.clone() };
-    let (sever_t, (sever_grid, sever_changes)) = measure(repeats, || grid.clone(), |mut g| {
-        let c = g.apply(&sever);
-        (g, c)
-    });
+    let (sever_t, (sever_grid, sever_changes)) = measure(
+        repeats,
+        || grid.clone(),
+        |mut g| {
+            let c = g.apply(&sever);
+            (g, c)
+        },
+    );
     sever_changes?;
     let sever_ok = compare_grids(&sever_grid, &sever_grid.rebuild(), 1e-12).is_ok();
     bar.inc(1);
@@ -291,31 +319,74 @@ fn print_table(r: &Report) {
     println!("incise-bench grid: {}", r.volume);
     println!(
         "  stride {},{},{} -> {}x{}x{} voxels of {:.3}x{:.3}x{:.3} mm, {} with material, {} material(s), top level {}",
-        r.stride[0], r.stride[1], r.stride[2], r.dims[0], r.dims[1], r.dims[2], s[0], s[1], s[2], fmt_count(r.voxels), r.materials, r.top_level
+        r.stride[0],
+        r.stride[1],
+        r.stride[2],
+        r.dims[0],
+        r.dims[1],
+        r.dims[2],
+        s[0],
+        s[1],
+        s[2],
+        fmt_count(r.voxels),
+        r.materials,
+        r.top_level
     );
     println!();
-    println!("  {:>5} {:>10} {:>13} {:>10} {:>8}", "level", "elements", "superimposed", "nodes", "fill");
+    println!(
+        "  {:>5} {:>10} {:>13} {:>10} {:>8}",
+        "level", "elements", "superimposed", "nodes", "fill"
+    );
     for l in &r.levels {
-        println!("  {:>5} {:>10} {:>13} {:>10} {:>8.3}", l.level, fmt_count(l.elements), fmt_count(l.superimposed), fmt_count(l.nodes), l.fill_ratio);
+        println!(
+            "  {:>5} {:>10} {:>13} {:>10} {:>8.3}",
+            l.level,
+            fmt_count(l.elements),
+            fmt_count(l.superimposed),
+            fmt_count(l.nodes),
+            l.fill_ratio
+        );
     }
     println!();
     let row = |what: &str, t: &Timing| {
-        println!("  {what:<52} {:>10.3} {:>10.3} {:>10.3} {:>4}", t.median_ms, t.min_ms, t.max_ms, t.repeats);
+        println!(
+            "  {what:<52} {:>10.3} {:>10.3} {:>10.3} {:>4}",
+            t.median_ms, t.min_ms, t.max_ms, t.repeats
+        );
     };
     println!("  {:<52} {:>10} {:>10} {:>10} {:>4}", "timing (ms)", "median", "min", "max", "n");
     println!("  {:<52} {:>10.3}", "load + crop + stride (once)", r.load_ms);
-    row(&format!("condensation tables (part of build, L = {})", r.top_level), &Timing { median_ms: r.tables_ms, min_ms: r.tables_ms, max_ms: r.tables_ms, repeats: 1 });
+    row(
+        &format!("condensation tables (part of build, L = {})", r.top_level),
+        &Timing { median_ms: r.tables_ms, min_ms: r.tables_ms, max_ms: r.tables_ms, repeats: 1 },
+    );
     row("build: volume -> grid -> condensed K, M at top", &r.build);
-    row(&format!("direct condensation, all elements ({} steps)", fmt_count(r.condense_direct_steps)), &r.condense_direct);
+    row(
+        &format!(
+            "direct condensation, all elements ({} steps)",
+            fmt_count(r.condense_direct_steps)
+        ),
+        &r.condense_direct,
+    );
     row("recursive condensation (eq. 1), all levels", &r.condense_recursive);
     row(&format!("cut stroke of {} voxels: incremental update", r.cut_voxels), &r.cut500_update);
     row("cut stroke: rebuild from scratch", &r.cut500_rebuild);
-    println!("  {:<52} {:>10.3}", format!("separation stroke, {} links severed: update", r.sever500_links), r.sever500_update_ms);
+    println!(
+        "  {:<52} {:>10.3}",
+        format!("separation stroke, {} links severed: update", r.sever500_links),
+        r.sever500_update_ms
+    );
     println!();
-    println!("  direct vs recursive: {:.1}x faster, max relative difference {:.2e}", r.direct_speedup, r.condense_max_rel_diff);
+    println!(
+        "  direct vs recursive: {:.1}x faster, max relative difference {:.2e}",
+        r.direct_speedup, r.condense_max_rel_diff
+    );
     println!(
         "  cut stroke: update {:.1}x faster than rebuild; {} elements added, {} removed, {} matrices updated",
-        r.cut500_speedup, r.cut500_elements_added, r.cut500_elements_removed, r.cut500_matrices_updated
+        r.cut500_speedup,
+        r.cut500_elements_added,
+        r.cut500_elements_removed,
+        r.cut500_matrices_updated
     );
     println!(
         "  incremental equals rebuild: {} (max relative K/M difference {:.2e}); separation stroke: {}",
@@ -327,7 +398,18 @@ fn write_csv(path: &std::path::Path, r: &Report) -> std::io::Result<()> {
     let mut f = std::fs::File::create(path)?;
     writeln!(f, "volume,voxels,level,elements,superimposed,nodes,occupied_cells,fill_ratio")?;
     for l in &r.levels {
-        writeln!(f, "\"{}\",{},{},{},{},{},{},{}", r.volume, r.voxels, l.level, l.elements, l.superimposed, l.nodes, l.occupied_cells, l.fill_ratio)?;
+        writeln!(
+            f,
+            "\"{}\",{},{},{},{},{},{},{}",
+            r.volume,
+            r.voxels,
+            l.level,
+            l.elements,
+            l.superimposed,
+            l.nodes,
+            l.occupied_cells,
+            l.fill_ratio
+        )?;
     }
     Ok(())
 }

@@ -13,10 +13,16 @@ pub struct Timing {
 
 /// Runs `prepare` (untimed) then `f` (timed) `repeats` times; returns the timings and the last
 /// result of `f`.
-pub fn measure<S, T>(repeats: usize, mut prepare: impl FnMut() -> S, mut f: impl FnMut(S) -> T) -> (Timing, T) {
+pub fn measure<S, T>(
+    repeats: usize,
+    mut prepare: impl FnMut() -> S,
+    mut f: impl FnMut(S) -> T,
+) -> (Timing, T) {
     let mut times = Vec::with_capacity(repeats);
     let mut last = None;
     for _ in 0..repeats.max(1) {
+        // Free the previous result first so its memory does not crowd the next measurement.
+        drop(last.take());
         let input = prepare();
         let start = Instant::now();
         let out = f(input);
@@ -24,6 +30,11 @@ pub fn measure<S, T>(repeats: usize, mut prepare: impl FnMut() -> S, mut f: impl
         last = Some(out);
     }
     times.sort_by(f64::total_cmp);
-    let timing = Timing { median_ms: times[times.len() / 2], min_ms: times[0], max_ms: times[times.len() - 1], repeats: times.len() };
+    let timing = Timing {
+        median_ms: times[times.len() / 2],
+        min_ms: times[0],
+        max_ms: times[times.len() - 1],
+        repeats: times.len(),
+    };
     (timing, last.expect("at least one repeat"))
 }

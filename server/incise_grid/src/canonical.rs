@@ -55,8 +55,20 @@ impl CanonicalLevel {
                 children.sort_unstable();
                 let mut neighbors: Vec<u32> = e.neighbors.iter().map(|&n| key_of(n)).collect();
                 neighbors.sort_unstable();
-                let nodes = e.nodes.map(|n| (lvl.node(n).map_or(u32::MAX, |x| x.point), node_key.get(&n).copied().unwrap_or(u32::MAX)));
-                CanonicalElement { key: e.min_voxel, cell: e.cell, voxel_count: e.voxel_count, children, neighbors, nodes }
+                let nodes = e.nodes.map(|n| {
+                    (
+                        lvl.node(n).map_or(u32::MAX, |x| x.point),
+                        node_key.get(&n).copied().unwrap_or(u32::MAX),
+                    )
+                });
+                CanonicalElement {
+                    key: e.min_voxel,
+                    cell: e.cell,
+                    voxel_count: e.voxel_count,
+                    children,
+                    neighbors,
+                    nodes,
+                }
             })
             .collect();
         elements.sort_unstable();
@@ -95,6 +107,7 @@ pub fn canonical_levels(grid: &BranchedGrid) -> Vec<CanonicalLevel> {
         .iter()
         .enumerate()
         .map(|(i, lvl)| {
+            let lvl = &lvl.with_nodes();
             if i == 0 {
                 CanonicalLevel::of(lvl, |v| v)
             } else {
@@ -121,17 +134,24 @@ pub fn compare_grids(a: &BranchedGrid, b: &BranchedGrid, rel_tol: f64) -> Result
     if !a.fine().same_material_and_links(b.fine()) {
         return Err("fine levels differ".into());
     }
-    let by_key = |g: &BranchedGrid| -> BTreeMap<u32, u32> { g.top().elements().map(|(id, e)| (e.min_voxel, id)).collect() };
+    let by_key = |g: &BranchedGrid| -> BTreeMap<u32, u32> {
+        g.top().elements().map(|(id, e)| (e.min_voxel, id)).collect()
+    };
     let (ka, kb) = (by_key(a), by_key(b));
     let mut worst = 0.0f64;
     for (key, &ia) in &ka {
         let ib = kb[key];
-        let (ma, mb) = (a.matrices(ia).ok_or("missing matrices")?, b.matrices(ib).ok_or("missing matrices")?);
-        let dk = ma.stiffness.frobenius_diff(&mb.stiffness) / mb.stiffness.frobenius().max(f64::MIN_POSITIVE);
-        let dm = mat8_frobenius_diff(&ma.mass, &mb.mass) / mat8_frobenius(&mb.mass).max(f64::MIN_POSITIVE);
+        let (ma, mb) =
+            (a.matrices(ia).ok_or("missing matrices")?, b.matrices(ib).ok_or("missing matrices")?);
+        let dk = ma.stiffness.frobenius_diff(&mb.stiffness)
+            / mb.stiffness.frobenius().max(f64::MIN_POSITIVE);
+        let dm = mat8_frobenius_diff(&ma.mass, &mb.mass)
+            / mat8_frobenius(&mb.mass).max(f64::MIN_POSITIVE);
         worst = worst.max(dk).max(dm);
         if dk > rel_tol || dm > rel_tol {
-            return Err(format!("element with voxel {key}: K differs by {dk:e}, M by {dm:e} (relative), above {rel_tol:e}"));
+            return Err(format!(
+                "element with voxel {key}: K differs by {dk:e}, M by {dm:e} (relative), above {rel_tol:e}"
+            ));
         }
     }
     Ok(worst)

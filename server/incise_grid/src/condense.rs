@@ -15,7 +15,7 @@
 //! `K₀, M₀`; a sub-block is taken in one step only where all its voxels share one material, so the
 //! result is exact for any interleaving and fast where materials have clear borders.
 
-use crate::hex8::{Mat8, Mat24, corner, hex_mass, hex_stiffness, shape};
+use crate::hex8::{Mat8, Mat24, Sym24, corner, hex_mass, hex_stiffness, shape};
 use crate::material::Material;
 use incise_math::{Vec3, morton_decode};
 
@@ -101,23 +101,30 @@ impl VoxelMatrices {
     }
 }
 
+/// One material's stiffness and mass tables, indexed `[k][i]`.
+type MaterialTables = (Vec<Vec<Sym24>>, Vec<Vec<Mat8>>);
+
 /// The cached products `H_(L−k),iᵀ A_(k) H_(L−k),i` for every material, block level
 /// `k ∈ 0..=L` and sub-position `i ∈ 0..8^(L−k)` (Morton order), for elements at level `L`.
 #[derive(Clone, Debug)]
 pub struct CondensationTables {
     levels: u32,
     voxel: Vec<VoxelMatrices>,
-    /// `stiffness[mat][k][i]`.
-    stiffness: Vec<Vec<Vec<Mat24>>>,
+    /// `stiffness[mat][k][i]`, upper triangles.
+    stiffness: Vec<Vec<Vec<Sym24>>>,
     /// `mass[mat][k][i]`.
     mass: Vec<Vec<Vec<Mat8>>>,
 }
 
 impl CondensationTables {
     /// Builds the tables for elements at level `levels` over voxels of edge lengths `spacing`.
+    ///
+    /// # Panics
+    /// If a table thread panics (it only does arithmetic, so only on a bug).
     #[must_use]
     pub fn new(spacing: Vec3, materials: &[Material], levels: u32) -> Self {
-        let voxel: Vec<VoxelMatrices> = materials.iter().map(|m| VoxelMatrices::new(spacing, m)).collect();
+        let voxel: Vec<VoxelMatrices> =
+            materials.iter().map(|m| VoxelMatrices::new(spacing, m)).collect();
         let per_material = |v: &VoxelMatrices| {
             let mut ks = Vec::with_capacity(levels as usize + 1);
             let mut ms = Vec::with_capacity(levels as usize + 1);
@@ -127,9 +134,13 @@ impl CondensationTables {
                 let ks_k = f64::from(1u32 << k);
                 let ms_k = ks_k * ks_k * ks_k;
                 let mut a = v.stiffness.clone();
-                a.0.iter_mut().for_each(|x| *x *= ks_k);
+                for x in &mut a.0 {
+                    *x *= ks_k;
+                }
                 let mut m = v.mass;
-                m.iter_mut().for_each(|x| *x *= ms_k);
+                for x in &mut m {
+                    *x *= ms_k;
+                }
                 let d = levels - k;
                 let count = 1usize << (3 * d);
                 let mut kt = Vec::with_capacity(count);
@@ -137,7 +148,7 @@ impl CondensationTables {
                 for i in 0..count {
                     let (x, y, z) = morton_decode(i as u64);
                     let n = interpolation([x, y, z], d);
-                    kt.push(condense_stiffness(&a, &n));
+                    kt.push(Sym24::from_upper(&condense_stiffness(&a, &n)));
                     mt.push(condense_mass(&m, &n));
                 }
                 ks.push(kt);
@@ -147,9 +158,10 @@ impl CondensationTables {
         };
         // The materials are independent, so build them on separate threads (results do not depend
         // on the thread count: each table is computed by exactly one thread, in one order).
-        let built: Vec<(Vec<Vec<Mat24>>, Vec<Vec<Mat8>>)> = if voxel.len() > 1 {
+        let built: Vec<MaterialTables> = if voxel.len() > 1 {
             std::thread::scope(|s| {
-                let handles: Vec<_> = voxel.iter().map(|v| s.spawn(move || per_material(v))).collect();
+                let handles: Vec<_> =
+                    voxel.iter().map(|v| s.spawn(move || per_material(v))).collect();
                 handles.into_iter().map(|h| h.join().expect("table thread panicked")).collect()
             })
         } else {
@@ -173,7 +185,7 @@ impl CondensationTables {
 
     /// Eq. 4 term of one voxel (block level 0) at local Morton index `morton`.
     #[must_use]
-    pub fn voxel_terms(&self, mat: usize, morton: u64) -> (&Mat24, &Mat8) {
+    pub fn voxel_terms(&self, mat: usize, morton: u64) -> (&Sym24, &Mat8) {
         (&self.stiffness[mat][0][morton as usize], &self.mass[mat][0][morton as usize])
     }
 
@@ -181,6 +193,12 @@ impl CondensationTables {
     /// element. Sorts `voxels` in place; returns `(K, m)` with `M = m ⊗ I₃`, and the number of
     /// condensation steps taken (one per full sub-block).
     pub fn condense(&self, voxels: &mut [(u64, u16)]) -> (Mat24, Mat8, usize) {
+        let (k, m, steps) = self.condense_packed(voxels);
+        (k.to_full(), m, steps)
+    }
+
+    /// [`CondensationTables::condense`] with the stiffness left as an upper triangle.
+    pub fn condense_packed(&self, voxels: &mut [(u64, u16)]) -> (Sym24, Mat8, usize) {
         voxels.sort_unstable();
         let n = voxels.len();
         // run[i]: how many entries from i on have consecutive indices and one material.
@@ -191,7 +209,7 @@ impl CondensationTables {
                 run[i] = run[i + 1] + 1;
             }
         }
-        let mut k_sum = Mat24::zeros();
+        let mut k_sum = Sym24::zeros();
         let mut m_sum = [0.0; 64];
         let mut steps = 0;
         let mut i = 0;
@@ -245,7 +263,10 @@ mod tests {
         let mut sum = Mat24::zeros();
         for c in 0..8 {
             let b = corner(c);
-            sum.add_assign(&condense_stiffness(&k0, &interpolation([b[0] as u32, b[1] as u32, b[2] as u32], 1)));
+            sum.add_assign(&condense_stiffness(
+                &k0,
+                &interpolation([b[0] as u32, b[1] as u32, b[2] as u32], 1),
+            ));
         }
         let direct = hex_stiffness([2e-3, 4e-3, 3e-3], 5e3, 0.3);
         assert!(sum.frobenius_diff(&direct) <= 1e-13 * direct.frobenius());
@@ -261,7 +282,15 @@ mod tests {
         // Block 1 (indices 8..16) loses voxel 9: 7 single voxels + 7 full level-1 blocks.
         assert_eq!(tables.condense(&mut voxels).2, 7 + 7);
         let mut mixed: Vec<(u64, u16)> = (0..64).map(|m| (m, u16::from(m >= 32))).collect();
-        let two = CondensationTables::new([1.0; 3], &[Material::new(1.0, 0.3, 1.0), Material::new(2.0, 0.3, 1.0)], 2);
-        assert_eq!(two.condense(&mut mixed).2, 8, "a material border splits the cell into 8 blocks");
+        let two = CondensationTables::new(
+            [1.0; 3],
+            &[Material::new(1.0, 0.3, 1.0), Material::new(2.0, 0.3, 1.0)],
+            2,
+        );
+        assert_eq!(
+            two.condense(&mut mixed).2,
+            8,
+            "a material border splits the cell into 8 blocks"
+        );
     }
 }

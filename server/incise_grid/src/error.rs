@@ -54,7 +54,9 @@ pub enum VolumeError {
     #[error("the volume has no foreground voxel (every label is 0 after filtering)")]
     EmptyForeground,
     /// A label in the volume has no material.
-    #[error("label {label} occurs in the volume ({count} voxels) but the material table has no entry for it")]
+    #[error(
+        "label {label} occurs in the volume ({count} voxels) but the material table has no entry for it"
+    )]
     UnknownLabel {
         /// The label without a material.
         label: u16,

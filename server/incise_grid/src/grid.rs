@@ -8,14 +8,42 @@
 //! direct condensation of the pieces of a split element, and reports what changed in a
 //! [`GridChanges`] for the solver and surface.
 
-use crate::condense::{CondensationTables, condense_mass, condense_stiffness, interpolation, lumped};
+use crate::condense::{
+    CondensationTables, condense_mass, condense_stiffness, interpolation, lumped,
+};
 use crate::error::{EditError, VolumeError};
-use crate::hex8::{Mat8, Mat24};
+use crate::hex8::{Mat8, Mat24, Sym24};
 use crate::material::{Material, MaterialTable};
 use crate::topology::{FineLevel, Level, LevelChanges, NONE, coords};
 use crate::volume::LabelVolume;
 use incise_math::{Vec3, morton_encode};
 use std::sync::Arc;
+
+/// `k -= Σ K`, `m -= Σ M` over `removed` voxels (eq. 5), summing first so that each voxel term is
+/// read once and the element is touched once.
+fn subtract_voxels(
+    tables: &CondensationTables,
+    removed: &[(u32, u32, u16)],
+    dims: [u32; 3],
+    top_level: u32,
+    k: &mut Sym24,
+    m: &mut Mat8,
+) {
+    let mut ks = Sym24::zeros();
+    let mut ms = [0.0; 64];
+    for &(_, v, mat) in removed {
+        let (kv, mv) =
+            tables.voxel_terms(usize::from(mat), BranchedGrid::local_morton(v, dims, top_level));
+        ks.add_assign(kv);
+        for (a, b) in ms.iter_mut().zip(mv.iter()) {
+            *a += *b;
+        }
+    }
+    k.sub_assign(&ks);
+    for (a, b) in m.iter_mut().zip(ms.iter()) {
+        *a -= *b;
+    }
+}
 
 /// Deepest supported level: a level-6 cell holds 262,144 voxels and its product table 1.2 GB.
 pub const MAX_LEVELS: u32 = 5;
@@ -32,9 +60,9 @@ pub struct ElementMatrices {
 }
 
 impl ElementMatrices {
-    fn new(stiffness: Mat24, mass: Mat8) -> Self {
-        let lumped_mass = lumped(&mass);
-        Self { stiffness, mass, lumped_mass }
+    fn new(stiffness: Mat24, mass: &Mat8) -> Self {
+        let lumped_mass = lumped(mass);
+        Self { stiffness, mass: *mass, lumped_mass }
     }
 }
 
@@ -89,15 +117,23 @@ pub struct BranchedGrid {
     levels: Vec<Level>,
     top_level: u32,
     tables: Arc<CondensationTables>,
-    matrices: Vec<Option<ElementMatrices>>,
+    /// Boxed so that growing the list after a split moves pointers, not 5 KB per element.
+    matrices: Vec<Option<Box<ElementMatrices>>>,
 }
 
 impl BranchedGrid {
     /// Builds every level up to `top_level` from a label volume and condenses the top level's
     /// stiffness and mass. Every non-zero label of `volume` must have a material in `materials`.
-    pub fn build(volume: &LabelVolume, materials: &MaterialTable, top_level: u32) -> Result<Self, VolumeError> {
+    pub fn build(
+        volume: &LabelVolume,
+        materials: &MaterialTable,
+        top_level: u32,
+    ) -> Result<Self, VolumeError> {
         if top_level > MAX_LEVELS {
-            return Err(VolumeError::BadMaterial { label: 0, what: format!("level {top_level} exceeds the supported {MAX_LEVELS}") });
+            return Err(VolumeError::BadMaterial {
+                label: 0,
+                what: format!("level {top_level} exceeds the supported {MAX_LEVELS}"),
+            });
         }
         let mut index_of = vec![0u16; usize::from(u16::MAX) + 1];
         let mut mats = Vec::new();
@@ -131,7 +167,13 @@ impl BranchedGrid {
     }
 
     /// Builds all levels and the top level's matrices over `fine` (whose parents are reset).
-    fn from_fine(mut fine: FineLevel, placement: (Vec3, Vec3, [[f64; 3]; 3]), materials: Vec<Material>, material_labels: Vec<u16>, top_level: u32) -> Self {
+    fn from_fine(
+        mut fine: FineLevel,
+        placement: (Vec3, Vec3, [[f64; 3]; 3]),
+        materials: Vec<Material>,
+        material_labels: Vec<u16>,
+        top_level: u32,
+    ) -> Self {
         let (spacing, origin, direction) = placement;
         fine.parent.iter_mut().for_each(|p| *p = NONE);
         let levels = if top_level == 0 {
@@ -142,18 +184,30 @@ impl BranchedGrid {
             for l in 1..=top_level {
                 let lvl = Level::new(l, 1, d);
                 d = lvl.cell_dims();
-                v.push(lvl);
+                v.push(if l == top_level { lvl } else { lvl.without_node_tracking() });
             }
             v
         };
         let tables = Arc::new(CondensationTables::new(spacing, &materials, top_level));
-        let all: Vec<u32> = (0..fine.material.len() as u32).filter(|&v| fine.material[v as usize] != 0).collect();
-        let mut grid = Self { spacing, origin, direction, materials, material_labels, fine, levels, top_level, tables, matrices: Vec::new() };
+        let all: Vec<u32> =
+            (0..fine.material.len() as u32).filter(|&v| fine.material[v as usize] != 0).collect();
+        let mut grid = Self {
+            spacing,
+            origin,
+            direction,
+            materials,
+            material_labels,
+            fine,
+            levels,
+            top_level,
+            tables,
+            matrices: Vec::new(),
+        };
         grid.update_levels(&all);
         let ids: Vec<u32> = grid.top().elements().map(|(id, _)| id).collect();
         grid.matrices = vec![None; grid.top().element_capacity()];
         for id in ids {
-            grid.matrices[id as usize] = Some(grid.condense_direct(id));
+            grid.matrices[id as usize] = Some(Box::new(grid.condense_direct(id)));
         }
         grid
     }
@@ -174,6 +228,9 @@ impl BranchedGrid {
 
     /// Applies voxel removals and link severings, updating every level and the top level's
     /// matrices locally. Nothing changes if the edit names a voxel or link that does not exist.
+    ///
+    /// # Panics
+    /// Only on a broken internal invariant (a live element without matrices).
     pub fn apply(&mut self, edit: &GridEdit) -> Result<GridChanges, EditError> {
         let count = self.fine.material.len();
         for &v in &edit.remove_voxels {
@@ -234,9 +291,9 @@ impl BranchedGrid {
             self.matrices[id as usize] = None;
         }
         let mut updated: Vec<u32> = Vec::new();
-        let split_origins: Vec<u32> = top.elements_added.iter().filter_map(|&(_, o)| o).collect();
+        // New pieces of split elements: direct condensation of their (usually few) voxels.
         for &(id, _) in &top.elements_added {
-            self.matrices[id as usize] = Some(self.condense_direct(id));
+            self.matrices[id as usize] = Some(Box::new(self.condense_direct(id)));
             updated.push(id);
         }
         for &(id, old_count) in &top.elements_shrunk {
@@ -244,29 +301,43 @@ impl BranchedGrid {
             let lo = removed.partition_point(|r| r.0 < id);
             let hi = removed.partition_point(|r| r.0 <= id);
             let mine = &removed[lo..hi];
-            let pure_removal = !split_origins.contains(&id) && mine.len() as u32 == old_count - now;
-            // Subtracting more than what remains would leave a small difference of large sums.
-            if pure_removal && (mine.len() as u32) < now {
-                let mats = self.matrices[id as usize].as_mut().expect("live element has matrices");
-                let mut k = mats.stiffness.clone();
+            let pieces: Vec<u32> = top
+                .elements_added
+                .iter()
+                .filter(|&&(_, o)| o == Some(id))
+                .map(|&(p, _)| p)
+                .collect();
+            let piece_voxels: u32 =
+                pieces.iter().map(|&p| self.top().element(p).map_or(0, |e| e.voxel_count)).sum();
+            let subtracted = mine.len() as u32 + piece_voxels;
+            // Eq. 5: what left the element (removed voxels, split-off pieces) is subtracted, as long as
+            // less leaves than stays; beyond that a small difference of large sums would lose digits.
+            if subtracted == old_count - now && subtracted < now {
+                let mats = self.matrices[id as usize].as_ref().expect("live element has matrices");
+                let mut k = Sym24::from_upper(&mats.stiffness);
                 let mut m = mats.mass;
-                for &(_, v, mat) in mine {
-                    let morton = Self::local_morton(v, self.fine.dims, self.top_level);
-                    let (kv, mv) = self.tables.voxel_terms(usize::from(mat), morton);
-                    k.sub_assign(kv);
-                    for (a, b) in m.iter_mut().zip(mv.iter()) {
+                subtract_voxels(&self.tables, mine, self.fine.dims, self.top_level, &mut k, &mut m);
+                for &p in &pieces {
+                    let pm = self.matrices[p as usize].as_ref().expect("piece condensed above");
+                    k.sub_assign(&Sym24::from_upper(&pm.stiffness));
+                    for (a, b) in m.iter_mut().zip(pm.mass.iter()) {
                         *a -= *b;
                     }
                 }
-                self.matrices[id as usize] = Some(ElementMatrices::new(k, m));
+                self.matrices[id as usize] = Some(Box::new(ElementMatrices::new(k.to_full(), &m)));
             } else {
-                self.matrices[id as usize] = Some(self.condense_direct(id));
+                self.matrices[id as usize] = Some(Box::new(self.condense_direct(id)));
             }
             updated.push(id);
         }
         updated.sort_unstable();
         updated.dedup();
-        Ok(GridChanges { top, matrices_updated: updated, voxels_removed: removed.len(), links_severed })
+        Ok(GridChanges {
+            top,
+            matrices_updated: updated,
+            voxels_removed: removed.len(),
+            links_severed,
+        })
     }
 
     /// The top-level element owning voxel `v` (or `NONE` when it is empty).
@@ -304,7 +375,9 @@ impl BranchedGrid {
             out.extend_from_slice(&e.children);
         } else {
             for &c in &e.children {
-                let child = &self.levels[level_index - 1].element(c).expect("child of a live element is live");
+                let child = &self.levels[level_index - 1]
+                    .element(c)
+                    .expect("child of a live element is live");
                 self.collect_voxels(level_index - 1, child, out);
             }
         }
@@ -313,7 +386,7 @@ impl BranchedGrid {
     /// Direct condensation (eq. 2–4, 6) of top-level element `id`.
     fn condense_direct(&self, id: u32) -> ElementMatrices {
         let (k, m, _) = self.condense_direct_with_steps(id);
-        ElementMatrices::new(k, m)
+        ElementMatrices::new(k, &m)
     }
 
     /// Direct condensation of top-level element `id`, with the number of condensation steps.
@@ -322,13 +395,21 @@ impl BranchedGrid {
         let mut voxels: Vec<(u64, u16)> = self
             .element_voxels(id)
             .into_iter()
-            .map(|v| (Self::local_morton(v, self.fine.dims, self.top_level), self.fine.material[v as usize] - 1))
+            .map(|v| {
+                (
+                    Self::local_morton(v, self.fine.dims, self.top_level),
+                    self.fine.material[v as usize] - 1,
+                )
+            })
             .collect();
         self.tables.condense(&mut voxels)
     }
 
     /// Recursive condensation (eq. 1), the 8 → 1 scheme of Nesme et al. 2006, level by level from
     /// the voxels: the reference direct condensation is tested against. Indexed by top element id.
+    ///
+    /// # Panics
+    /// Only on a broken internal invariant (a live element with a dead child).
     #[must_use]
     pub fn condense_recursive(&self) -> Vec<Option<ElementMatrices>> {
         let voxel_terms = |v: u32, pos_bits: u32| -> (Mat24, Mat8) {
@@ -345,7 +426,7 @@ impl BranchedGrid {
             let mut out = vec![None; top.element_capacity()];
             for (id, e) in top.elements() {
                 let (k, m) = voxel_terms(e.children[0], u32::MAX);
-                out[id as usize] = Some(ElementMatrices::new(k, m));
+                out[id as usize] = Some(ElementMatrices::new(k, &m));
             }
             return out;
         }
@@ -360,7 +441,8 @@ impl BranchedGrid {
                         voxel_terms(c, 0)
                     } else {
                         let child_level = &self.levels[li - 1];
-                        let cc = child_level.cell_coords(child_level.element(c).expect("live child").cell);
+                        let cc = child_level
+                            .cell_coords(child_level.element(c).expect("live child").cell);
                         let n = interpolation([cc[0] & 1, cc[1] & 1, cc[2] & 1], 1);
                         let (ka, ma) = below[c as usize].as_ref().expect("child condensed");
                         (condense_stiffness(ka, &n), condense_mass(ma, &n))
@@ -374,16 +456,19 @@ impl BranchedGrid {
             }
             below = here;
         }
-        below.into_iter().map(|x| x.map(|(k, m)| ElementMatrices::new(k, m))).collect()
+        below.into_iter().map(|x| x.map(|(k, m)| ElementMatrices::new(k, &m))).collect()
     }
 
     /// Condensed matrices of top-level element `id`.
     #[must_use]
     pub fn matrices(&self, id: u32) -> Option<&ElementMatrices> {
-        self.matrices.get(id as usize).and_then(Option::as_ref)
+        self.matrices.get(id as usize).and_then(Option::as_deref)
     }
 
     /// The level the mechanics runs on.
+    ///
+    /// # Panics
+    /// Never: a grid always holds at least one level.
     #[must_use]
     pub fn top(&self) -> &Level {
         self.levels.last().expect("at least one level")
@@ -440,7 +525,9 @@ impl BranchedGrid {
     #[must_use]
     pub fn world_from_grid(&self, p: Vec3) -> Vec3 {
         let q: Vec3 = std::array::from_fn(|a| p[a] - 0.5 * self.spacing[a]);
-        std::array::from_fn(|r| self.origin[r] + (0..3).map(|c| self.direction[r][c] * q[c]).sum::<f64>())
+        std::array::from_fn(|r| {
+            self.origin[r] + (0..3).map(|c| self.direction[r][c] * q[c]).sum::<f64>()
+        })
     }
 
     /// Materials in index order, with the label each came from.
@@ -462,12 +549,14 @@ impl BranchedGrid {
         if self.top_level > 0 {
             let mut fine = self.fine.clone();
             let mut l0 = Level::new(0, 0, fine.dims);
-            let all: Vec<u32> = (0..fine.material.len() as u32).filter(|&v| fine.material[v as usize] != 0).collect();
+            let all: Vec<u32> = (0..fine.material.len() as u32)
+                .filter(|&v| fine.material[v as usize] != 0)
+                .collect();
             let mut ch = LevelChanges::default();
             l0.update(&mut fine, &all, &mut ch);
             out.push(Self::summarize(&l0));
         }
-        out.extend(self.levels.iter().map(Self::summarize));
+        out.extend(self.levels.iter().map(|l| Self::summarize(&l.with_nodes())));
         out
     }
 
@@ -499,7 +588,11 @@ impl BranchedGrid {
     /// [`BranchedGrid::rebuild`], not by the volume.
     #[must_use]
     pub fn fine_labels(&self) -> Vec<u16> {
-        self.fine.material.iter().map(|&m| if m == 0 { 0 } else { self.material_labels[usize::from(m - 1)] }).collect()
+        self.fine
+            .material
+            .iter()
+            .map(|&m| if m == 0 { 0 } else { self.material_labels[usize::from(m - 1)] })
+            .collect()
     }
 
     /// A grid built from scratch on this grid's current fine level (removed voxels and severed
@@ -507,6 +600,12 @@ impl BranchedGrid {
     #[must_use]
     pub fn rebuild(&self) -> Self {
         let placement = (self.spacing, self.origin, self.direction);
-        Self::from_fine(self.fine.clone(), placement, self.materials.clone(), self.material_labels.clone(), self.top_level)
+        Self::from_fine(
+            self.fine.clone(),
+            placement,
+            self.materials.clone(),
+            self.material_labels.clone(),
+            self.top_level,
+        )
     }
 }

@@ -71,6 +71,70 @@ impl std::fmt::Debug for Mat24 {
     }
 }
 
+/// A symmetric 24×24 matrix stored as its upper triangle, row by row (300 entries): condensed
+/// stiffness is symmetric, so sums over voxels touch half the memory.
+#[derive(Clone, PartialEq)]
+pub struct Sym24(pub [f64; 300]);
+
+impl Sym24 {
+    /// All zeros.
+    #[must_use]
+    pub fn zeros() -> Self {
+        Self([0.0; 300])
+    }
+
+    /// The upper triangle of `m` (its lower triangle is ignored).
+    #[must_use]
+    pub fn from_upper(m: &Mat24) -> Self {
+        let mut out = [0.0; 300];
+        let mut k = 0;
+        for r in 0..24 {
+            for c in r..24 {
+                out[k] = m.0[r * 24 + c];
+                k += 1;
+            }
+        }
+        Self(out)
+    }
+
+    /// The full symmetric matrix.
+    #[must_use]
+    pub fn to_full(&self) -> Mat24 {
+        let mut m = Mat24::zeros();
+        let mut k = 0;
+        for r in 0..24 {
+            for c in r..24 {
+                m.0[r * 24 + c] = self.0[k];
+                m.0[c * 24 + r] = self.0[k];
+                k += 1;
+            }
+        }
+        m
+    }
+
+    /// `self += other`.
+    #[inline]
+    pub fn add_assign(&mut self, other: &Self) {
+        for (a, b) in self.0.iter_mut().zip(other.0.iter()) {
+            *a += *b;
+        }
+    }
+
+    /// `self -= other`.
+    #[inline]
+    pub fn sub_assign(&mut self, other: &Self) {
+        for (a, b) in self.0.iter_mut().zip(other.0.iter()) {
+            *a -= *b;
+        }
+    }
+}
+
+impl std::fmt::Debug for Sym24 {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Sym24(‖·‖F = {:e})", self.to_full().frobenius())
+    }
+}
+
 /// Frobenius norm of the difference of two 8×8 matrices.
 #[must_use]
 pub fn mat8_frobenius_diff(a: &Mat8, b: &Mat8) -> f64 {

@@ -17,6 +17,6 @@ pub mod volume;
 
 pub use error::{EditError, VolumeError};
 pub use grid::{BranchedGrid, ElementMatrices, GridChanges, GridEdit, LevelSummary};
-pub use topology::{Element, Level, LevelChanges, Node};
 pub use material::{LabelFilter, Material, MaterialTable};
+pub use topology::{Element, Level, LevelChanges, Node};
 pub use volume::LabelVolume;

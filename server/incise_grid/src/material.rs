@@ -32,14 +32,23 @@ impl Material {
     /// Soft parenchyma in the range reported for human liver in vivo (E ≈ 3–6 kPa).
     #[must_use]
     pub fn liver() -> Self {
-        Self { youngs_modulus: 4_500.0, poisson_ratio: 0.45, density: 1_060.0, rayleigh_mass: 0.1, rayleigh_stiffness: 0.01 }
+        Self {
+            youngs_modulus: 4_500.0,
+            poisson_ratio: 0.45,
+            density: 1_060.0,
+            rayleigh_mass: 0.1,
+            rayleigh_stiffness: 0.01,
+        }
     }
 
     /// Checks every parameter is physical; `label` only names the material in the error.
     pub fn validate(&self, label: u16) -> Result<(), VolumeError> {
         let bad = |what: String| Err(VolumeError::BadMaterial { label, what });
         if !(self.youngs_modulus.is_finite() && self.youngs_modulus > 0.0) {
-            return bad(format!("Young's modulus {} Pa must be finite and positive", self.youngs_modulus));
+            return bad(format!(
+                "Young's modulus {} Pa must be finite and positive",
+                self.youngs_modulus
+            ));
         }
         if !(self.poisson_ratio > -1.0 && self.poisson_ratio < 0.5) {
             return bad(format!("Poisson ratio {} must lie in (-1, 0.5)", self.poisson_ratio));
@@ -48,10 +57,16 @@ impl Material {
             return bad(format!("density {} kg/m^3 must be finite and positive", self.density));
         }
         if !(self.rayleigh_mass.is_finite() && self.rayleigh_mass >= 0.0) {
-            return bad(format!("Rayleigh mass damping {} must be finite and non-negative", self.rayleigh_mass));
+            return bad(format!(
+                "Rayleigh mass damping {} must be finite and non-negative",
+                self.rayleigh_mass
+            ));
         }
         if !(self.rayleigh_stiffness.is_finite() && self.rayleigh_stiffness >= 0.0) {
-            return bad(format!("Rayleigh stiffness damping {} must be finite and non-negative", self.rayleigh_stiffness));
+            return bad(format!(
+                "Rayleigh stiffness damping {} must be finite and non-negative",
+                self.rayleigh_stiffness
+            ));
         }
         Ok(())
     }
@@ -87,7 +102,15 @@ impl MaterialTable {
         let mut t = Self::new();
         t.insert(255, Material::liver());
         t.insert(127, Material { youngs_modulus: 10_000.0, ..Material::liver() });
-        t.insert(85, Material { youngs_modulus: 2_000.0, poisson_ratio: 0.48, density: 1_020.0, ..Material::liver() });
+        t.insert(
+            85,
+            Material {
+                youngs_modulus: 2_000.0,
+                poisson_ratio: 0.48,
+                density: 1_020.0,
+                ..Material::liver()
+            },
+        );
         t
     }
 
@@ -187,7 +210,10 @@ mod tests {
     #[test]
     fn bad_materials_name_the_label() {
         let err = Material::new(1e3, 0.5, 1000.0).validate(12).unwrap_err();
-        assert!(err.to_string().contains("label 12") && err.to_string().contains("Poisson"), "{err}");
+        assert!(
+            err.to_string().contains("label 12") && err.to_string().contains("Poisson"),
+            "{err}"
+        );
         assert!(Material::new(-1.0, 0.3, 1.0).validate(1).is_err());
         assert!(Material::new(1.0, 0.3, f64::NAN).validate(1).is_err());
         assert!(Material::liver().validate(1).is_ok());

@@ -33,7 +33,9 @@ pub fn from_fn(dims: [usize; 3], spacing: Vec3, f: impl Fn(f64, f64, f64) -> u16
 pub fn sphere(n: usize, spacing: f64) -> LabelVolume {
     let c = (n as f64 - 1.0) / 2.0;
     let r2 = (n as f64 / 2.0 - 0.5).powi(2);
-    from_fn([n; 3], [spacing; 3], |x, y, z| u16::from((x - c).powi(2) + (y - c).powi(2) + (z - c).powi(2) <= r2) * TISSUE)
+    from_fn([n; 3], [spacing; 3], |x, y, z| {
+        u16::from((x - c).powi(2) + (y - c).powi(2) + (z - c).powi(2) <= r2) * TISSUE
+    })
 }
 
 /// An ellipsoid of tissue with semi-axes `(0.48, 0.36, 0.3)·n` voxels, holding an off-centre
@@ -141,6 +143,10 @@ mod tests {
         assert_eq!(slab(8, 1, 1e-3).foreground_count(), 64);
         let b = two_blobs(16, 1e-3);
         let mid = b.dims()[0] / 2;
-        assert!((0..b.dims()[1]).any(|y| (0..b.dims()[2]).any(|z| b.label(mid, y, z) != 0 && b.label(mid - 1, y, z) != 0)), "the blobs touch");
+        assert!(
+            (0..b.dims()[1]).any(|y| (0..b.dims()[2])
+                .any(|z| b.label(mid, y, z) != 0 && b.label(mid - 1, y, z) != 0)),
+            "the blobs touch"
+        );
     }
 }

@@ -44,7 +44,11 @@ impl LabelVolume {
 
     /// The same volume placed at `origin` (metres, world position of voxel (0,0,0)'s centre) with
     /// the columns of `direction` giving the world directions of the voxel axes.
-    pub fn with_placement(mut self, origin: Vec3, direction: [[f64; 3]; 3]) -> Result<Self, VolumeError> {
+    pub fn with_placement(
+        mut self,
+        origin: Vec3,
+        direction: [[f64; 3]; 3],
+    ) -> Result<Self, VolumeError> {
         if origin.iter().chain(direction.iter().flatten()).any(|v| !v.is_finite()) {
             return Err(VolumeError::BadPlacement);
         }
@@ -133,13 +137,23 @@ impl LabelVolume {
 
     /// The sub-box `[min, max]` (inclusive) sampled every `stride[a]` voxels along axis `a`, starting
     /// at `min`. The spacing grows by the stride and the origin moves to the first sample.
-    pub fn sub_volume(&self, min: [usize; 3], max: [usize; 3], stride: [usize; 3]) -> Result<Self, VolumeError> {
+    pub fn sub_volume(
+        &self,
+        min: [usize; 3],
+        max: [usize; 3],
+        stride: [usize; 3],
+    ) -> Result<Self, VolumeError> {
         for a in 0..3 {
             if stride[a] == 0 {
                 return Err(VolumeError::BadStride { axis: a });
             }
             if min[a] > max[a] || max[a] >= self.dims[a] {
-                return Err(VolumeError::BadCrop { axis: a, min: min[a], max: max[a], dim: self.dims[a] });
+                return Err(VolumeError::BadCrop {
+                    axis: a,
+                    min: min[a],
+                    max: max[a],
+                    dim: self.dims[a],
+                });
             }
         }
         let dims: [usize; 3] = std::array::from_fn(|a| (max[a] - min[a]) / stride[a] + 1);
@@ -181,7 +195,10 @@ impl LabelVolume {
     pub fn world_from_voxel(&self, p: Vec3) -> Vec3 {
         let s = [p[0] * self.spacing[0], p[1] * self.spacing[1], p[2] * self.spacing[2]];
         std::array::from_fn(|r| {
-            self.origin[r] + self.direction[r][0] * s[0] + self.direction[r][1] * s[1] + self.direction[r][2] * s[2]
+            self.origin[r]
+                + self.direction[r][0] * s[0]
+                + self.direction[r][1] * s[1]
+                + self.direction[r][2] * s[2]
         })
     }
 }
@@ -202,6 +219,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::float_cmp)] // exact: spacing times a small integer, added to a zero origin
     fn crop_finds_the_block_and_moves_the_origin() {
         let v = tiny().crop_and_stride([1, 1, 1]).unwrap();
         assert_eq!(v.dims(), [2, 2, 1]);
@@ -210,6 +228,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::float_cmp)] // exact: doubling a double is exact
     fn stride_scales_spacing() {
         let v = tiny().crop_and_stride([2, 1, 1]).unwrap();
         assert_eq!(v.dims(), [1, 2, 1]);
@@ -218,11 +237,23 @@ mod tests {
 
     #[test]
     fn bad_inputs_are_errors() {
-        assert!(matches!(LabelVolume::new([0, 1, 1], [1.0; 3], vec![]), Err(VolumeError::BadDimension { axis: 0, .. })));
-        assert!(matches!(LabelVolume::new([1, 1, 1], [1.0, 0.0, 1.0], vec![1]), Err(VolumeError::BadSpacing { axis: 1, .. })));
-        assert!(matches!(LabelVolume::new([2, 1, 1], [1.0; 3], vec![1]), Err(VolumeError::SizeMismatch { .. })));
+        assert!(matches!(
+            LabelVolume::new([0, 1, 1], [1.0; 3], vec![]),
+            Err(VolumeError::BadDimension { axis: 0, .. })
+        ));
+        assert!(matches!(
+            LabelVolume::new([1, 1, 1], [1.0, 0.0, 1.0], vec![1]),
+            Err(VolumeError::BadSpacing { axis: 1, .. })
+        ));
+        assert!(matches!(
+            LabelVolume::new([2, 1, 1], [1.0; 3], vec![1]),
+            Err(VolumeError::SizeMismatch { .. })
+        ));
         let empty = LabelVolume::new([2, 1, 1], [1.0; 3], vec![0, 0]).unwrap();
         assert!(matches!(empty.crop_and_stride([1, 1, 1]), Err(VolumeError::EmptyForeground)));
-        assert!(matches!(tiny().crop_and_stride([1, 0, 1]), Err(VolumeError::BadStride { axis: 1 })));
+        assert!(matches!(
+            tiny().crop_and_stride([1, 0, 1]),
+            Err(VolumeError::BadStride { axis: 1 })
+        ));
     }
 }

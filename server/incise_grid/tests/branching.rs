@@ -63,7 +63,8 @@ fn u_tube_arms_branch_where_they_share_cells() {
             (arms.len() == 1).then(|| *arms.first().unwrap())
         };
         let shares_cells = (0..top.cell_dims().iter().product::<u32>()).any(|c| {
-            let arms: BTreeSet<usize> = top.cell_elements(c).iter().filter_map(|&e| arm_of(e)).collect();
+            let arms: BTreeSet<usize> =
+                top.cell_elements(c).iter().filter_map(|&e| arm_of(e)).collect();
             arms.len() == 2
         });
         let mut nodes = [BTreeSet::new(), BTreeSet::new()];
@@ -77,13 +78,22 @@ fn u_tube_arms_branch_where_they_share_cells() {
         let base_plane = (shape.base_height as u32).div_ceil(1 << level);
         for &n in &shared {
             let p = top.point_coords(top.node(n).unwrap().point);
-            assert!(p[2] <= base_plane, "level {level}: node {n} at {p:?} is shared by both arms above the base");
+            assert!(
+                p[2] <= base_plane,
+                "level {level}: node {n} at {p:?} is shared by both arms above the base"
+            );
         }
         if level >= 2 {
             assert!(shares_cells, "level {level}: the arms should share cells");
-            assert!(top.superimposed_count() >= 2, "level {level}: cells holding both arms need superimposed elements");
+            assert!(
+                top.superimposed_count() >= 2,
+                "level {level}: cells holding both arms need superimposed elements"
+            );
         } else {
-            assert!(!shares_cells && top.superimposed_count() == 0, "level 1 cells never hold both arms");
+            assert!(
+                !shares_cells && top.superimposed_count() == 0,
+                "level 1 cells never hold both arms"
+            );
         }
     }
 }
@@ -99,7 +109,8 @@ fn level_zero_is_the_voxel_graph() {
         assert_eq!((e.voxel_count, e.children.as_slice()), (1, &[e.min_voxel][..]));
         let mut expected: Vec<u32> = common::fine_neighbors(&grid, e.min_voxel);
         expected.sort_unstable();
-        let mut got: Vec<u32> = e.neighbors.iter().map(|&n| top.element(n).unwrap().min_voxel).collect();
+        let mut got: Vec<u32> =
+            e.neighbors.iter().map(|&n| top.element(n).unwrap().min_voxel).collect();
         got.sort_unstable();
         assert_eq!(got, expected);
     }

@@ -21,7 +21,8 @@ fn max_direct_vs_recursive(grid: &BranchedGrid) -> f64 {
         let d = grid.matrices(id).expect("matrices of a live element");
         let r = rec[id as usize].as_ref().expect("recursive matrices");
         let dk = d.stiffness.frobenius_diff(&r.stiffness) / r.stiffness.frobenius();
-        let dm = incise_grid::hex8::mat8_frobenius_diff(&d.mass, &r.mass) / incise_grid::hex8::mat8_frobenius(&r.mass);
+        let dm = incise_grid::hex8::mat8_frobenius_diff(&d.mass, &r.mass)
+            / incise_grid::hex8::mat8_frobenius(&r.mass);
         worst = worst.max(dk).max(dm);
     }
     worst
@@ -52,7 +53,10 @@ fn direct_equals_recursive_at_level_4() {
         let v = random_volume([19, 17, 18], density, mats, seed);
         let grid = BranchedGrid::build(&v, &materials(mats), 4).unwrap();
         let worst = max_direct_vs_recursive(&grid);
-        assert!(worst <= 1e-12, "seed {seed}, {mats} materials: direct vs recursive differ by {worst:e}");
+        assert!(
+            worst <= 1e-12,
+            "seed {seed}, {mats} materials: direct vs recursive differ by {worst:e}"
+        );
     }
 }
 
@@ -71,7 +75,8 @@ fn full_cell_equals_the_coarse_hexahedron() {
         let kd = hex_stiffness(size, m.youngs_modulus, m.poisson_ratio);
         let md = hex_mass(size, m.density);
         let dk = k.frobenius_diff(&kd) / kd.frobenius();
-        let dm = incise_grid::hex8::mat8_frobenius_diff(&mass, &md) / incise_grid::hex8::mat8_frobenius(&md);
+        let dm = incise_grid::hex8::mat8_frobenius_diff(&mass, &md)
+            / incise_grid::hex8::mat8_frobenius(&md);
         assert!(dk <= 1e-12 && dm <= 1e-12, "level {level}: K differs by {dk:e}, M by {dm:e}");
     }
 }

@@ -41,10 +41,12 @@ fn check_changes(grid: &BranchedGrid, changes: &incise_grid::GridChanges) -> Res
         if top.element(id).is_none() {
             return Err(format!("added element {id} is not alive"));
         }
-        if let Some(o) = origin {
-            if top.element(o).is_none() {
-                return Err(format!("element {id} split from {o}, which should survive as the largest piece"));
-            }
+        if let Some(o) = origin
+            && top.element(o).is_none()
+        {
+            return Err(format!(
+                "element {id} split from {o}, which should survive as the largest piece"
+            ));
         }
     }
     for &id in &changes.top.elements_removed {
@@ -115,7 +117,9 @@ fn voxel(grid: &BranchedGrid, x: u32, y: u32, z: u32) -> u32 {
 fn no_topological_change_updates_matrices_only() {
     let mut grid = block([8, 4, 4]);
     let before = grid.top().element_count();
-    let changes = grid.apply(&GridEdit { remove_voxels: vec![voxel(&grid, 1, 1, 1)], sever_links: vec![] }).unwrap();
+    let changes = grid
+        .apply(&GridEdit { remove_voxels: vec![voxel(&grid, 1, 1, 1)], sever_links: vec![] })
+        .unwrap();
     assert_eq!(grid.top().element_count(), before);
     assert!(changes.top.elements_added.is_empty() && changes.top.elements_removed.is_empty());
     assert!(changes.top.nodes_added.is_empty() && changes.top.nodes_removed.is_empty());
@@ -127,15 +131,26 @@ fn no_topological_change_updates_matrices_only() {
 fn cell_split_creates_a_superimposed_element() {
     // Remove the voxel plane x = 1 inside the first level-2 cell (x 0..4): x = 0 is cut off.
     let mut grid = block([8, 4, 4]);
-    let plane: Vec<u32> = (0..4).flat_map(|z| (0..4).map(move |y| (y, z))).map(|(y, z)| voxel(&grid, 1, y, z)).collect();
+    let plane: Vec<u32> = (0..4)
+        .flat_map(|z| (0..4).map(move |y| (y, z)))
+        .map(|(y, z)| voxel(&grid, 1, y, z))
+        .collect();
     let changes = grid.apply(&GridEdit { remove_voxels: plane, sever_links: vec![] }).unwrap();
     assert_eq!(grid.top().element_count(), 3, "x = 0 slice, x 2..4 and the second cell");
     assert_eq!(changes.top.elements_added.len(), 1);
     let (new, origin) = changes.top.elements_added[0];
     assert!(origin.is_some(), "the new piece names the element it split from");
-    assert_eq!(grid.top().element(new).unwrap().voxel_count, 16, "the smaller piece is the new one");
+    assert_eq!(
+        grid.top().element(new).unwrap().voxel_count,
+        16,
+        "the smaller piece is the new one"
+    );
     assert_eq!(grid.top().superimposed_count(), 2);
-    assert_eq!(changes.top.nodes_added.len(), 8, "the cut-off slice connects to nothing: all 8 corners are its own");
+    assert_eq!(
+        changes.top.nodes_added.len(),
+        8,
+        "the cut-off slice connects to nothing: all 8 corners are its own"
+    );
     compare_grids(&grid, &grid.rebuild(), 1e-12).unwrap();
 }
 
@@ -143,22 +158,37 @@ fn cell_split_creates_a_superimposed_element() {
 fn cell_disconnect_unshares_nodes() {
     // Sever every link across x = 4 between the two level-2 cells of an 8×4×4 block.
     let mut grid = block([8, 4, 4]);
-    let links: Vec<(u32, u32)> =
-        (0..4).flat_map(|z| (0..4).map(move |y| (y, z))).map(|(y, z)| (voxel(&grid, 3, y, z), voxel(&grid, 4, y, z))).collect();
+    let links: Vec<(u32, u32)> = (0..4)
+        .flat_map(|z| (0..4).map(move |y| (y, z)))
+        .map(|(y, z)| (voxel(&grid, 3, y, z), voxel(&grid, 4, y, z)))
+        .collect();
     let nodes_before = grid.top().node_count();
     let changes = grid.apply(&GridEdit { remove_voxels: vec![], sever_links: links }).unwrap();
     assert_eq!(changes.links_severed, 16);
     assert_eq!(grid.top().element_count(), 2);
-    assert!(grid.top().elements().all(|(_, e)| e.neighbors.is_empty()), "the two elements are no longer connected");
-    assert_eq!(grid.top().node_count(), nodes_before + 4, "the shared face's 4 nodes are duplicated");
-    assert!(changes.top.nodes_added.iter().all(|&(_, o)| o.is_some()), "new nodes name the node they split from");
+    assert!(
+        grid.top().elements().all(|(_, e)| e.neighbors.is_empty()),
+        "the two elements are no longer connected"
+    );
+    assert_eq!(
+        grid.top().node_count(),
+        nodes_before + 4,
+        "the shared face's 4 nodes are duplicated"
+    );
+    assert!(
+        changes.top.nodes_added.iter().all(|&(_, o)| o.is_some()),
+        "new nodes name the node they split from"
+    );
     compare_grids(&grid, &grid.rebuild(), 1e-12).unwrap();
 }
 
 #[test]
 fn cell_removal_drops_the_element() {
     let mut grid = block([8, 4, 4]);
-    let all: Vec<u32> = (0..4).flat_map(|z| (0..4).flat_map(move |y| (0..4).map(move |x| (x, y, z)))).map(|(x, y, z)| voxel(&grid, x, y, z)).collect();
+    let all: Vec<u32> = (0..4)
+        .flat_map(|z| (0..4).flat_map(move |y| (0..4).map(move |x| (x, y, z))))
+        .map(|(x, y, z)| voxel(&grid, x, y, z))
+        .collect();
     let changes = grid.apply(&GridEdit { remove_voxels: all, sever_links: vec![] }).unwrap();
     assert_eq!(changes.top.elements_removed.len(), 1);
     assert_eq!(grid.top().element_count(), 1);
@@ -170,9 +200,11 @@ fn cell_removal_drops_the_element() {
 fn bad_edits_are_errors_and_change_nothing() {
     let mut grid = block([8, 4, 4]);
     let before = canonical_levels(&grid);
-    let err = grid.apply(&GridEdit { remove_voxels: vec![0, 1000], sever_links: vec![] }).unwrap_err();
+    let err =
+        grid.apply(&GridEdit { remove_voxels: vec![0, 1000], sever_links: vec![] }).unwrap_err();
     assert!(err.to_string().contains("1000"), "{err}");
-    let err = grid.apply(&GridEdit { remove_voxels: vec![], sever_links: vec![(0, 2)] }).unwrap_err();
+    let err =
+        grid.apply(&GridEdit { remove_voxels: vec![], sever_links: vec![(0, 2)] }).unwrap_err();
     assert!(err.to_string().contains("do not share a face"), "{err}");
     assert_eq!(canonical_levels(&grid), before);
 }

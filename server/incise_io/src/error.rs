@@ -19,7 +19,11 @@ pub enum IoError {
         source: std::io::Error,
     },
     /// The file ends before the part its header announces.
-    #[error("{file}: data truncated: needs {} bytes of {what}, file holds {}", grouped(*.expected), grouped(*.found))]
+    #[error(
+        "{file}: data truncated: needs {} bytes of {what}, file holds {}",
+        grouped(*.expected),
+        grouped(*.found)
+    )]
     Truncated {
         /// The file.
         file: String,
@@ -89,8 +93,8 @@ pub enum IoError {
     },
     /// Neither the extension nor the content names a format this crate reads.
     #[error(
-        "{file}: unknown format: the name does not end in .nii, .nii.gz, .inr or .inr.gz and the \
-         content is neither NIfTI-1 nor INRIMAGE-4"
+        "{file}: unknown format: neither the name (.nii, .nii.gz, .inr, .inr.gz) nor the content \
+         says NIfTI-1 or INRIMAGE-4"
     )]
     UnknownFormat {
         /// The file.
@@ -121,7 +125,7 @@ pub(crate) fn grouped(n: u64) -> String {
     let digits = n.to_string();
     let mut out = String::with_capacity(digits.len() + digits.len() / 3);
     for (i, ch) in digits.chars().enumerate() {
-        if i > 0 && (digits.len() - i) % 3 == 0 {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
             out.push(',');
         }
         out.push(ch);

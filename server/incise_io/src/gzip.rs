@@ -31,8 +31,17 @@ pub(crate) struct Input<'a> {
 enum Source<'a> {
     /// The bytes not yet handed out.
     Plain(&'a [u8]),
-    /// The inflater, and whether its stream has ended (cleanly or cut short).
-    Gzip { decoder: Box<MultiGzDecoder<&'a [u8]>>, ended: bool },
+    /// The inflater, and how far its stream has got.
+    Gzip { decoder: Box<MultiGzDecoder<&'a [u8]>>, state: State },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum State {
+    Open,
+    /// The stream ended with its trailer, CRC checked.
+    Ended,
+    /// The compressed bytes ran out before the stream's end.
+    CutShort,
 }
 
 impl<'a> Input<'a> {
@@ -40,7 +49,7 @@ impl<'a> Input<'a> {
     /// errors.
     pub(crate) fn new(bytes: &'a [u8], file: &'a str) -> Self {
         let source = if is_gzip(bytes) {
-            Source::Gzip { decoder: Box::new(MultiGzDecoder::new(bytes)), ended: false }
+            Source::Gzip { decoder: Box::new(MultiGzDecoder::new(bytes)), state: State::Open }
         } else {
             Source::Plain(bytes)
         };
@@ -95,7 +104,8 @@ impl<'a> Input<'a> {
                 let mut scratch = [0u8; 8192];
                 let mut skipped = 0u64;
                 while skipped < n {
-                    let want = usize::try_from(n - skipped).unwrap_or(usize::MAX).min(scratch.len());
+                    let want =
+                        usize::try_from(n - skipped).unwrap_or(usize::MAX).min(scratch.len());
                     let got = self.read_some(&mut scratch[..want])?;
                     if got == 0 {
                         break;
@@ -108,31 +118,41 @@ impl<'a> Input<'a> {
     }
 
     /// Counts (and discards) the bytes left. Inflating to the end also checks the gzip CRC, so a
-    /// corrupt stream is reported even when the voxels before the corruption looked fine.
+    /// corrupt or cut stream is reported even when every voxel before the damage came through.
     pub(crate) fn rest_len(&mut self) -> Result<u64, IoError> {
-        self.skip(u64::MAX)
+        let rest = self.skip(u64::MAX)?;
+        if let Source::Gzip { state: State::CutShort, .. } = self.source {
+            return Err(IoError::Io {
+                file: self.file.to_owned(),
+                source: io::Error::new(
+                    io::ErrorKind::UnexpectedEof,
+                    "gzip stream is cut short: it ends before its CRC-32 trailer",
+                ),
+            });
+        }
+        Ok(rest)
     }
 
     /// One read from the inflater. A stream that is cut short reads as ending there, so that the
     /// caller reports the truncation with byte counts rather than a bare "unexpected end of file".
     fn read_some(&mut self, buf: &mut [u8]) -> Result<usize, IoError> {
         let file = self.file;
-        let Source::Gzip { decoder, ended } = &mut self.source else {
+        let Source::Gzip { decoder, state } = &mut self.source else {
             return Ok(0);
         };
-        if *ended {
+        if *state != State::Open {
             return Ok(0);
         }
         loop {
             match decoder.read(buf) {
                 Ok(0) => {
-                    *ended = true;
+                    *state = State::Ended;
                     return Ok(0);
                 }
                 Ok(got) => return Ok(got),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
                 Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
-                    *ended = true;
+                    *state = State::CutShort;
                     return Ok(0);
                 }
                 Err(e) => {
@@ -157,12 +177,11 @@ impl<'a> Input<'a> {
 }
 
 /// `bytes` compressed as one gzip member.
-pub(crate) fn compress(bytes: &[u8]) -> Vec<u8> {
+pub(crate) fn compress(bytes: &[u8]) -> io::Result<Vec<u8>> {
     use std::io::Write;
     let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
-    // Writing into a Vec cannot fail: the only errors would come from the underlying writer.
-    let _ = encoder.write_all(bytes);
-    encoder.finish().unwrap_or_default()
+    encoder.write_all(bytes)?;
+    encoder.finish()
 }
 
 #[cfg(test)]
@@ -176,7 +195,7 @@ mod tests {
     #[test]
     fn plain_and_gzip_read_the_same_bytes() {
         let data = payload();
-        let packed = compress(&data);
+        let packed = compress(&data).unwrap();
         assert!(is_gzip(&packed) && !is_gzip(&data));
         for bytes in [&data, &packed] {
             let mut input = Input::new(bytes, "t");
@@ -191,7 +210,7 @@ mod tests {
     #[test]
     fn huge_request_returns_what_is_there() {
         let data = payload();
-        let packed = compress(&data);
+        let packed = compress(&data).unwrap();
         for bytes in [&data, &packed] {
             let mut input = Input::new(bytes, "t");
             assert_eq!(input.take(usize::MAX).unwrap().len(), data.len());
@@ -201,17 +220,24 @@ mod tests {
     #[test]
     fn cut_gzip_stream_reads_as_short() {
         let data = payload();
-        let packed = compress(&data);
+        let packed = compress(&data).unwrap();
         let cut = &packed[..packed.len() / 2];
         let mut input = Input::new(cut, "t");
         let got = input.take(data.len()).unwrap();
         assert!(got.len() < data.len());
         assert_eq!(got.as_ref(), &data[..got.len()]);
+
+        // Cut inside the trailer: every byte comes through, but the stream is still incomplete.
+        let cut = &packed[..packed.len() - 3];
+        let mut input = Input::new(cut, "t.gz");
+        assert_eq!(input.take(data.len()).unwrap().len(), data.len());
+        let err = input.rest_len().unwrap_err();
+        assert!(err.to_string().starts_with("t.gz: gzip stream is cut short"), "{err}");
     }
 
     #[test]
     fn corrupt_gzip_stream_is_an_io_error_naming_the_file() {
-        let mut packed = compress(&payload());
+        let mut packed = compress(&payload()).unwrap();
         let n = packed.len();
         packed[n - 6] ^= 0xff; // inside the CRC-32 trailer
         let mut input = Input::new(&packed, "vol.nii.gz");

@@ -100,8 +100,8 @@ pub fn decode_nifti(bytes: &[u8], file: &str) -> Result<LabelVolume, IoError> {
         return Err(IoError::HeaderSizeMismatch {
             file: file.to_owned(),
             what: format!(
-                "{} bytes follow the {} bytes of voxels that dim ({nx}×{ny}×{nz}) and datatype ({}) \
-                 announce",
+                "{} bytes follow the {} bytes of voxels that dim ({nx}×{ny}×{nz}) and datatype \
+                 ({}) announce",
                 grouped(extra),
                 grouped(needed as u64),
                 header.sample.name()
@@ -128,8 +128,8 @@ pub fn encode_nifti(volume: &LabelVolume) -> Result<Vec<u8>, IoError> {
 pub fn write_nifti(path: &Path, volume: &LabelVolume) -> Result<(), IoError> {
     let file = path.display().to_string();
     let bytes = encode(volume, &file)?;
-    let bytes = if crate::ends_with_gz(path) { gzip::compress(&bytes) } else { bytes };
-    std::fs::write(path, bytes).map_err(|source| IoError::Io { file, source })
+    let bytes = if crate::ends_with_gz(path) { gzip::compress(&bytes) } else { Ok(bytes) };
+    bytes.and_then(|b| std::fs::write(path, b)).map_err(|source| IoError::Io { file, source })
 }
 
 /// What the decoder needs from the header, already converted to metres and checked.
@@ -176,7 +176,9 @@ impl Fields<'_> {
         let values: [f64; N] = std::array::from_fn(|i| self.f32(offset + 4 * i));
         match values.iter().position(|v| !v.is_finite()) {
             None => Ok(values),
-            Some(i) => Err(self.bad(format!("header field {name}[{i}]={} is not finite", values[i]))),
+            Some(i) => {
+                Err(self.bad(format!("header field {name}[{i}]={} is not finite", values[i])))
+            }
         }
     }
 
@@ -381,6 +383,7 @@ fn parse_datatype(f: &Fields) -> Result<SampleType, IoError> {
 
 /// The value transform, or `None` when it is the identity. A slope of 0 means "unset" in the
 /// standard; NaN is how some writers say the same, and readers commonly treat it so.
+#[expect(clippy::float_cmp, reason = "the identity is stored exactly as slope 1, intercept 0")]
 fn parse_scaling(f: &Fields) -> Result<Option<Scaling>, IoError> {
     let slope = f.f32(field::SCL_SLOPE);
     let inter = f.f32(field::SCL_INTER);
@@ -569,7 +572,8 @@ fn encode(volume: &LabelVolume, file: &str) -> Result<Vec<u8>, IoError> {
 
     let labels = volume.labels();
     let mut out = vec![0u8; MIN_VOX_OFFSET as usize];
-    let mut put = |offset: usize, bytes: &[u8]| out[offset..offset + bytes.len()].copy_from_slice(bytes);
+    let mut put =
+        |offset: usize, bytes: &[u8]| out[offset..offset + bytes.len()].copy_from_slice(bytes);
     put(field::SIZEOF_HDR, &(HEADER_SIZE as i32).to_le_bytes());
     let dim: [i16; 8] = [3, dims[0] as i16, dims[1] as i16, dims[2] as i16, 1, 1, 1, 1];
     for (i, d) in dim.iter().enumerate() {
@@ -638,6 +642,7 @@ fn normalized(a: [f64; 3]) -> [f64; 3] {
 }
 
 fn det(m: [[f64; 3]; 3]) -> f64 {
-    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }

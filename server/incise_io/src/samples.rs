@@ -220,7 +220,10 @@ mod tests {
         assert_eq!(l, [1, 300, 65535]);
         assert_eq!(b, l);
         let wide: Vec<u8> = [7i64, 65535].iter().flat_map(|v| v.to_be_bytes()).collect();
-        assert_eq!(to_labels(&wide, SampleType::I64, ByteOrder::Big, None, "f").unwrap(), [7, 65535]);
+        assert_eq!(
+            to_labels(&wide, SampleType::I64, ByteOrder::Big, None, "f").unwrap(),
+            [7, 65535]
+        );
     }
 
     #[test]
@@ -235,7 +238,10 @@ mod tests {
     #[test]
     fn floats_must_be_integral() {
         let ok: Vec<u8> = [0.0f32, -0.0, 12.0].iter().flat_map(|v| v.to_le_bytes()).collect();
-        assert_eq!(to_labels(&ok, SampleType::F32, ByteOrder::Little, None, "f").unwrap(), [0, 0, 12]);
+        assert_eq!(
+            to_labels(&ok, SampleType::F32, ByteOrder::Little, None, "f").unwrap(),
+            [0, 0, 12]
+        );
         for (bad, text) in [(2.5f64, "2.5"), (f64::NAN, "NaN"), (-1.0, "-1"), (70000.0, "70000")] {
             let raw: Vec<u8> = [1.0f64, bad].iter().flat_map(|v| v.to_be_bytes()).collect();
             let r = to_labels(&raw, SampleType::F64, ByteOrder::Big, None, "f");

@@ -49,7 +49,9 @@ mod tests {
 
     /// Eq. 6 written out bit by bit, the definition the fast version must match.
     fn eq6(x: u32, y: u32, z: u32) -> u64 {
-        (0..21).map(|l| u64::from(4 * ((z >> l) & 1) + 2 * ((y >> l) & 1) + ((x >> l) & 1)) << (3 * l)).sum()
+        (0..21)
+            .map(|l| u64::from(4 * ((z >> l) & 1) + 2 * ((y >> l) & 1) + ((x >> l) & 1)) << (3 * l))
+            .sum()
     }
 
     #[test]
@@ -57,7 +59,9 @@ mod tests {
         // Fig. 6 is 2-D (a quadtree): node 39 sits at x = 3, y = 5, i.e. Σ (2·y_l + x_l)·4^l.
         // In 3-D with z = 0 the same bits give (2·y_l + x_l)·8^l.
         // Bit pairs (y_l x_l) = 11, 01, 10 → 3 + 1·4 + 2·16 = 39 in the quadtree, 3 + 1·8 + 2·64 here.
-        let quadtree: u64 = (0..3).map(|l| u64::from(2 * ((5 >> l) & 1) + ((3 >> l) & 1)) << (2 * l)).sum();
+        let quadtree: u64 = (0..3u32)
+            .map(|l| u64::from(2 * ((5u32 >> l) & 1) + ((3u32 >> l) & 1)) << (2 * l))
+            .sum();
         assert_eq!(quadtree, 39);
         assert_eq!(morton_encode(3, 5, 0), 3 + 8 + 2 * 64);
         assert_eq!(morton_encode(1, 0, 0), 1);

@@ -36,7 +36,8 @@ impl Rng {
 pub fn random_volume(dims: [usize; 3], density: f64, materials: u16, seed: u64) -> LabelVolume {
     let mut rng = Rng(seed | 1);
     let n = dims[0] * dims[1] * dims[2];
-    let block_label: Vec<u16> = (0..n).map(|_| 1 + rng.below(u64::from(materials)) as u16).collect();
+    let block_label: Vec<u16> =
+        (0..n).map(|_| 1 + rng.below(u64::from(materials)) as u16).collect();
     let mut labels = vec![0u16; n];
     for z in 0..dims[2] {
         for y in 0..dims[1] {
@@ -44,7 +45,11 @@ pub fn random_volume(dims: [usize; 3], density: f64, materials: u16, seed: u64) 
                 let i = x + dims[0] * (y + dims[1] * z);
                 if rng.unit() < density {
                     let b = (x / 2) + dims[0] * ((y / 2) + dims[1] * (z / 2));
-                    labels[i] = if rng.unit() < 0.1 { 1 + rng.below(u64::from(materials)) as u16 } else { block_label[b] };
+                    labels[i] = if rng.unit() < 0.1 {
+                        1 + rng.below(u64::from(materials)) as u16
+                    } else {
+                        block_label[b]
+                    };
                 }
             }
         }
@@ -155,9 +160,6 @@ pub fn reference_level(grid: &BranchedGrid, l: u32) -> CanonicalLevel {
     }
     let mut node_of: BTreeMap<(u32, u32), (u32, u32)> = BTreeMap::new(); // (elem, corner) → (point, class key)
     let mut node_count = 0;
-    for (&cell, _) in &cell_elems {
-        let _ = cell;
-    }
     for pz in 0..pd[2] {
         for py in 0..pd[1] {
             for px in 0..pd[0] {
@@ -180,7 +182,8 @@ pub fn reference_level(grid: &BranchedGrid, l: u32) -> CanonicalLevel {
                     let mut changed = false;
                     for i in 0..around.len() {
                         for j in 0..around.len() {
-                            if elems[&around[i].0].2.contains(&around[j].0) && class[i] != class[j] {
+                            if elems[&around[i].0].2.contains(&around[j].0) && class[i] != class[j]
+                            {
                                 let m = class[i].min(class[j]);
                                 let (ci, cj) = (class[i], class[j]);
                                 for c in &mut class {

@@ -1,0 +1,87 @@
+//! `incise-bench grid` as scripts use it: its JSON keys are a contract.
+
+use std::process::Command;
+
+fn bench() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_incise-bench"))
+}
+
+fn liver() -> String {
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/data/liver.inr.gz").to_string()
+}
+
+fn last_json(out: &std::process::Output) -> serde_json::Value {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let last = stdout.lines().last().expect("some output");
+    serde_json::from_str(last).unwrap_or_else(|e| panic!("last line is not JSON ({e}): {last}"))
+}
+
+#[test]
+fn grid_report_json_has_the_contract_keys() {
+    let out = bench()
+        .args(["grid", "--volume", &liver(), "--stride", "8,8,4", "--levels", "3", "--repeats", "1", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    for key in [
+        "voxels",
+        "levels",
+        "build_ms",
+        "condense_direct_ms",
+        "condense_recursive_ms",
+        "condense_max_rel_diff",
+        "cut500_update_ms",
+        "cut500_rebuild_ms",
+        "incremental_equals_rebuild",
+    ] {
+        assert!(j.get(key).is_some(), "missing key {key} in {j}");
+    }
+    assert_eq!(j["voxels"], 13_648);
+    assert_eq!(j["incremental_equals_rebuild"], true);
+    assert!(j["condense_max_rel_diff"].as_f64().unwrap() < 1e-12);
+    let levels = j["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), 4);
+    for (l, row) in levels.iter().enumerate() {
+        assert_eq!(row["level"], l);
+        for key in ["elements", "superimposed", "nodes"] {
+            assert!(row[key].is_u64(), "level row lacks {key}: {row}");
+        }
+    }
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("superimposed") && table.contains("rebuild"), "human table printed");
+}
+
+#[test]
+fn grid_report_runs_on_a_procedural_organ_and_writes_csv() {
+    let csv = std::env::temp_dir().join(format!("incise-grid-{}.csv", std::process::id()));
+    let out = bench()
+        .args(["grid", "--procedural-size", "32", "--levels", "2", "--repeats", "1", "--cut-voxels", "100", "--json", "--csv"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    assert!(j["voxels"].as_u64().unwrap() > 1000);
+    assert_eq!(j["incremental_equals_rebuild"], true);
+    let text = std::fs::read_to_string(&csv).unwrap();
+    assert!(text.starts_with("volume,voxels,level,elements"));
+    assert_eq!(text.lines().count(), 1 + 3, "header plus levels 0..=2");
+    std::fs::remove_file(&csv).ok();
+}
+
+#[test]
+fn bad_input_gets_a_clear_error() {
+    let out = bench().args(["grid", "--volume", "no/such/scan.nii.gz"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no/such/scan.nii.gz"), "names the file: {err}");
+
+    let out = bench().args(["grid", "--stride", "4,0,2"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("at least 1"));
+
+    let out = bench().args(["grid", "--levels", "9"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--levels 9"));
+}

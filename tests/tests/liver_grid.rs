@@ -10,16 +10,24 @@ use incise_tests::fixture;
 
 fn liver(stride: [usize; 3]) -> LabelVolume {
     let raw = incise_io::read_volume(&fixture("liver.inr.gz")).expect("fixture reads");
-    raw.filtered(&LabelFilter::abdominal_ct()).crop_and_stride(stride).expect("fixture has a foreground")
+    raw.filtered(&LabelFilter::abdominal_ct())
+        .crop_and_stride(stride)
+        .expect("fixture has a foreground")
 }
 
 /// (level, elements, superimposed, nodes) for levels 0..=3.
-fn check_counts(stride: [usize; 3], voxels: usize, dims: [usize; 3], expected: [(u32, usize, usize, usize); 4]) {
+fn check_counts(
+    stride: [usize; 3],
+    voxels: usize,
+    dims: [usize; 3],
+    expected: [(u32, usize, usize, usize); 4],
+) {
     let v = liver(stride);
     assert_eq!(v.dims(), dims);
     assert_eq!(v.foreground_count(), voxels);
     let grid = BranchedGrid::build(&v, &MaterialTable::abdominal_ct(), 3).unwrap();
-    let got: Vec<(u32, usize, usize, usize)> = grid.summary().iter().map(|s| (s.level, s.elements, s.superimposed, s.nodes)).collect();
+    let got: Vec<(u32, usize, usize, usize)> =
+        grid.summary().iter().map(|s| (s.level, s.elements, s.superimposed, s.nodes)).collect();
     println!("liver at stride {stride:?}: {voxels} voxels");
     println!("level  elements  superimposed  nodes");
     for (l, e, s, n) in &got {
@@ -30,7 +38,12 @@ fn check_counts(stride: [usize; 3], voxels: usize, dims: [usize; 3], expected: [
 
 #[test]
 fn liver_at_stride_8_8_4() {
-    check_counts([8, 8, 4], 13_648, [42, 35, 34], [(0, 13_648, 0, 16_728), (1, 2_113, 6, 2_982), (2, 377, 24, 652), (3, 82, 16, 180)]);
+    check_counts(
+        [8, 8, 4],
+        13_648,
+        [42, 35, 34],
+        [(0, 13_648, 0, 16_728), (1, 2_113, 6, 2_982), (2, 377, 24, 652), (3, 82, 16, 180)],
+    );
 }
 
 #[test]
@@ -39,7 +52,12 @@ fn liver_at_stride_4_4_2() {
         [4, 4, 2],
         109_201,
         [84, 70, 68],
-        [(0, 109_201, 0, 121_556), (1, 15_217, 12, 18_471), (2, 2_304, 36, 3_189), (3, 403, 35, 682)],
+        [
+            (0, 109_201, 0, 121_556),
+            (1, 15_217, 12, 18_471),
+            (2, 2_304, 36, 3_189),
+            (3, 403, 35, 682),
+        ],
     );
 }
 
@@ -68,5 +86,8 @@ fn liver_cut_updates_equal_a_rebuild() {
     let changes = grid.apply(&GridEdit { remove_voxels: vec![], sever_links: sever }).unwrap();
     assert!(changes.links_severed > 100);
     compare_grids(&grid, &grid.rebuild(), 1e-12).unwrap();
-    assert!(grid.top().element_count() > elements_before, "cutting the organ in two branches its elements");
+    assert!(
+        grid.top().element_count() > elements_before,
+        "cutting the organ in two branches its elements"
+    );
 }

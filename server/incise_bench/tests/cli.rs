@@ -19,7 +19,18 @@ fn last_json(out: &std::process::Output) -> serde_json::Value {
 #[test]
 fn grid_report_json_has_the_contract_keys() {
     let out = bench()
-        .args(["grid", "--volume", &liver(), "--stride", "8,8,4", "--levels", "3", "--repeats", "1", "--json"])
+        .args([
+            "grid",
+            "--volume",
+            &liver(),
+            "--stride",
+            "8,8,4",
+            "--levels",
+            "3",
+            "--repeats",
+            "1",
+            "--json",
+        ])
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -56,7 +67,19 @@ fn grid_report_json_has_the_contract_keys() {
 fn grid_report_runs_on_a_procedural_organ_and_writes_csv() {
     let csv = std::env::temp_dir().join(format!("incise-grid-{}.csv", std::process::id()));
     let out = bench()
-        .args(["grid", "--procedural-size", "32", "--levels", "2", "--repeats", "1", "--cut-voxels", "100", "--json", "--csv"])
+        .args([
+            "grid",
+            "--procedural-size",
+            "32",
+            "--levels",
+            "2",
+            "--repeats",
+            "1",
+            "--cut-voxels",
+            "100",
+            "--json",
+            "--csv",
+        ])
         .arg(&csv)
         .output()
         .unwrap();

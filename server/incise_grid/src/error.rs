@@ -71,6 +71,14 @@ pub enum VolumeError {
         /// Which parameter is out of range, and its value.
         what: String,
     },
+    /// A top level beyond what the grid supports.
+    #[error("grid level {level} is too deep: at most {max} is supported (a level-{max} element already covers {}³ voxels)", 1u32 << max)]
+    LevelTooDeep {
+        /// The level asked for.
+        level: u32,
+        /// The deepest supported level.
+        max: u32,
+    },
     /// More distinct materials than the grid can index.
     #[error("{count} materials are in use; at most 65535 are supported")]
     TooManyMaterials {

@@ -130,10 +130,7 @@ impl BranchedGrid {
         top_level: u32,
     ) -> Result<Self, VolumeError> {
         if top_level > MAX_LEVELS {
-            return Err(VolumeError::BadMaterial {
-                label: 0,
-                what: format!("level {top_level} exceeds the supported {MAX_LEVELS}"),
-            });
+            return Err(VolumeError::LevelTooDeep { level: top_level, max: MAX_LEVELS });
         }
         let mut index_of = vec![0u16; usize::from(u16::MAX) + 1];
         let mut mats = Vec::new();

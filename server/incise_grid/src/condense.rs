@@ -15,7 +15,7 @@
 //! `K₀, M₀`; a sub-block is taken in one step only where all its voxels share one material, so the
 //! result is exact for any interleaving and fast where materials have clear borders.
 
-use crate::hex8::{Mat8, Mat24, Sym24, corner, hex_mass, hex_stiffness, shape};
+use crate::hex8::{Mat8, Mat24, Sym24, add_into, corner, hex_mass, hex_stiffness, shape};
 use crate::material::Material;
 use incise_math::{Vec3, morton_decode};
 
@@ -221,9 +221,7 @@ impl CondensationTables {
             }
             let pos = (m >> (3 * k)) as usize;
             k_sum.add_assign(&self.stiffness[mat as usize][k as usize][pos]);
-            for (a, b) in m_sum.iter_mut().zip(self.mass[mat as usize][k as usize][pos].iter()) {
-                *a += *b;
-            }
+            add_into(&mut m_sum, &self.mass[mat as usize][k as usize][pos]);
             steps += 1;
             i += 1 << (3 * k);
         }

@@ -12,7 +12,7 @@ use crate::condense::{
     CondensationTables, condense_mass, condense_stiffness, interpolation, lumped,
 };
 use crate::error::{EditError, VolumeError};
-use crate::hex8::{Mat8, Mat24, Sym24};
+use crate::hex8::{Mat8, Mat24, Sym24, add_into, sub_from};
 use crate::material::{Material, MaterialTable};
 use crate::topology::{FineLevel, Level, LevelChanges, NONE, coords};
 use crate::volume::LabelVolume;
@@ -35,14 +35,10 @@ fn subtract_voxels(
         let (kv, mv) =
             tables.voxel_terms(usize::from(mat), BranchedGrid::local_morton(v, dims, top_level));
         ks.add_assign(kv);
-        for (a, b) in ms.iter_mut().zip(mv.iter()) {
-            *a += *b;
-        }
+        add_into(&mut ms, mv);
     }
     k.sub_assign(&ks);
-    for (a, b) in m.iter_mut().zip(ms.iter()) {
-        *a -= *b;
-    }
+    sub_from(m, &ms);
 }
 
 /// Deepest supported level: a level-6 cell holds 262,144 voxels and its product table 1.2 GB.
@@ -317,9 +313,7 @@ impl BranchedGrid {
                 for &p in &pieces {
                     let pm = self.matrices[p as usize].as_ref().expect("piece condensed above");
                     k.sub_assign(&Sym24::from_upper(&pm.stiffness));
-                    for (a, b) in m.iter_mut().zip(pm.mass.iter()) {
-                        *a -= *b;
-                    }
+                    sub_from(&mut m, &pm.mass);
                 }
                 self.matrices[id as usize] = Some(Box::new(ElementMatrices::new(k.to_full(), &m)));
             } else {
@@ -445,9 +439,7 @@ impl BranchedGrid {
                         (condense_stiffness(ka, &n), condense_mass(ma, &n))
                     };
                     k.add_assign(&kc);
-                    for (a, b) in m.iter_mut().zip(mc.iter()) {
-                        *a += *b;
-                    }
+                    add_into(&mut m, &mc);
                 }
                 here[id as usize] = Some((k, m));
             }

@@ -8,6 +8,22 @@
 
 use incise_math::Vec3;
 
+/// `dst += src`, element by element (condensation sums: one fixed order, so bit-reproducible).
+#[inline]
+pub fn add_into(dst: &mut [f64], src: &[f64]) {
+    for (a, b) in dst.iter_mut().zip(src) {
+        *a += *b;
+    }
+}
+
+/// `dst -= src`, element by element.
+#[inline]
+pub fn sub_from(dst: &mut [f64], src: &[f64]) {
+    for (a, b) in dst.iter_mut().zip(src) {
+        *a -= *b;
+    }
+}
+
 /// A dense 24×24 matrix, row-major: entry `(r, c)` at `r * 24 + c`.
 #[derive(Clone, PartialEq)]
 pub struct Mat24(pub [f64; 576]);
@@ -33,17 +49,13 @@ impl Mat24 {
     /// `self += other`.
     #[inline]
     pub fn add_assign(&mut self, other: &Self) {
-        for (a, b) in self.0.iter_mut().zip(other.0.iter()) {
-            *a += *b;
-        }
+        add_into(&mut self.0, &other.0);
     }
 
     /// `self -= other`.
     #[inline]
     pub fn sub_assign(&mut self, other: &Self) {
-        for (a, b) in self.0.iter_mut().zip(other.0.iter()) {
-            *a -= *b;
-        }
+        sub_from(&mut self.0, &other.0);
     }
 
     /// `self · v`.
@@ -115,17 +127,13 @@ impl Sym24 {
     /// `self += other`.
     #[inline]
     pub fn add_assign(&mut self, other: &Self) {
-        for (a, b) in self.0.iter_mut().zip(other.0.iter()) {
-            *a += *b;
-        }
+        add_into(&mut self.0, &other.0);
     }
 
     /// `self -= other`.
     #[inline]
     pub fn sub_assign(&mut self, other: &Self) {
-        for (a, b) in self.0.iter_mut().zip(other.0.iter()) {
-            *a -= *b;
-        }
+        sub_from(&mut self.0, &other.0);
     }
 }
 

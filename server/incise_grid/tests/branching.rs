@@ -141,12 +141,14 @@ fn bad_grids_are_errors_that_say_why() {
     let v = u_tube(UTube::DEFAULT, 1e-3);
     let err = BranchedGrid::build(&v, &MaterialTable::new(), 2).unwrap_err();
     assert!(err.to_string().contains("label 1"), "{err}");
-    let err = BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::liver()), 9).unwrap_err();
+    let err =
+        BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::liver()), 9).unwrap_err();
     assert!(err.to_string().contains("level 9"), "{err}");
     let bad = MaterialTable::uniform(&[1], Material::new(1e3, 0.7, 1000.0));
     let err = BranchedGrid::build(&v, &bad, 2).unwrap_err();
     assert!(err.to_string().contains("Poisson"), "{err}");
     let empty = incise_grid::procedural::from_fn([4, 4, 4], [1e-3; 3], |_, _, _| 0);
-    let err = BranchedGrid::build(&empty, &MaterialTable::uniform(&[1], Material::liver()), 1).unwrap_err();
+    let err = BranchedGrid::build(&empty, &MaterialTable::uniform(&[1], Material::liver()), 1)
+        .unwrap_err();
     assert!(err.to_string().contains("no foreground"), "{err}");
 }

@@ -119,6 +119,39 @@ impl<'a> Input<'a> {
 
     /// Counts (and discards) the bytes left. Inflating to the end also checks the gzip CRC, so a
     /// corrupt or cut stream is reported even when every voxel before the damage came through.
+    /// Takes exactly the `needed` voxel bytes that end the file: fewer is a truncation, more is a
+    /// header/size mismatch. `what` describes the voxels (`"438×353×165 uint8"`), `announced_by`
+    /// names the header fields that fix their size.
+    pub(crate) fn take_voxels(
+        &mut self,
+        needed: usize,
+        what: &str,
+        announced_by: &str,
+    ) -> Result<Cow<'a, [u8]>, IoError> {
+        let file = self.file();
+        let raw = self.take(needed)?;
+        if raw.len() < needed {
+            return Err(IoError::Truncated {
+                file: file.to_owned(),
+                what: format!("voxels ({what})"),
+                expected: needed as u64,
+                found: raw.len() as u64,
+            });
+        }
+        let extra = self.rest_len()?;
+        if extra > 0 {
+            return Err(IoError::HeaderSizeMismatch {
+                file: file.to_owned(),
+                what: format!(
+                    "{} bytes follow the {} bytes of voxels that {announced_by} announce",
+                    crate::error::grouped(extra),
+                    crate::error::grouped(needed as u64)
+                ),
+            });
+        }
+        Ok(raw)
+    }
+
     pub(crate) fn rest_len(&mut self) -> Result<u64, IoError> {
         let rest = self.skip(u64::MAX)?;
         if let Source::Gzip { state: State::CutShort, .. } = self.source {

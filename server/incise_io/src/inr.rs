@@ -47,27 +47,11 @@ pub fn decode_inr(bytes: &[u8], file: &str) -> Result<LabelVolume, IoError> {
             file: file.to_owned(),
             what: format!("extent XDIM×YDIM×ZDIM = {nx}×{ny}×{nz} overflows the address space"),
         })?;
-    let raw = input.take(needed)?;
-    if raw.len() < needed {
-        return Err(IoError::Truncated {
-            file: file.to_owned(),
-            what: format!("voxels ({nx}×{ny}×{nz} {})", header.sample.name()),
-            expected: needed as u64,
-            found: raw.len() as u64,
-        });
-    }
-    let extra = input.rest_len()?;
-    if extra > 0 {
-        return Err(IoError::HeaderSizeMismatch {
-            file: file.to_owned(),
-            what: format!(
-                "{} bytes follow the {} bytes of voxels that XDIM×YDIM×ZDIM ({nx}×{ny}×{nz}) and \
-                 PIXSIZE announce",
-                grouped(extra),
-                grouped(needed as u64)
-            ),
-        });
-    }
+    let raw = input.take_voxels(
+        needed,
+        &format!("{nx}×{ny}×{nz} {}", header.sample.name()),
+        &format!("XDIM×YDIM×ZDIM ({nx}×{ny}×{nz}) and PIXSIZE"),
+    )?;
     let labels = to_labels(&raw, header.sample, header.order, None, file)?;
     drop(raw);
 

@@ -86,28 +86,11 @@ pub fn decode_nifti(bytes: &[u8], file: &str) -> Result<LabelVolume, IoError> {
 
     let [nx, ny, nz] = header.dims;
     let needed = header.data_bytes(file)?;
-    let raw = input.take(needed)?;
-    if raw.len() < needed {
-        return Err(IoError::Truncated {
-            file: file.to_owned(),
-            what: format!("voxels ({nx}×{ny}×{nz} {})", header.sample.name()),
-            expected: needed as u64,
-            found: raw.len() as u64,
-        });
-    }
-    let extra = input.rest_len()?;
-    if extra > 0 {
-        return Err(IoError::HeaderSizeMismatch {
-            file: file.to_owned(),
-            what: format!(
-                "{} bytes follow the {} bytes of voxels that dim ({nx}×{ny}×{nz}) and datatype \
-                 ({}) announce",
-                grouped(extra),
-                grouped(needed as u64),
-                header.sample.name()
-            ),
-        });
-    }
+    let raw = input.take_voxels(
+        needed,
+        &format!("{nx}×{ny}×{nz} {}", header.sample.name()),
+        &format!("dim ({nx}×{ny}×{nz}) and datatype ({})", header.sample.name()),
+    )?;
     let labels = to_labels(&raw, header.sample, header.order, header.scaling, file)?;
     drop(raw);
 

@@ -1,0 +1,129 @@
+//! Preconditioned conjugate gradients for the symmetric positive definite systems of the static
+//! and implicit solvers, matrix-free, with a block-Jacobi (3×3 per node) preconditioner and fixed
+//! nodes projected out. Dot products run in node order, so results are deterministic.
+
+use crate::constraints::FixedNodes;
+use incise_math::Vec3;
+use incise_math::mat3::{Mat3, det, mul_vec};
+
+/// When to stop.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CgSettings {
+    /// Stop when ‖r‖ ≤ tolerance · ‖b‖.
+    pub tolerance: f64,
+    /// Give up after this many iterations.
+    pub max_iterations: usize,
+}
+
+impl Default for CgSettings {
+    fn default() -> Self {
+        Self { tolerance: 1e-8, max_iterations: 10_000 }
+    }
+}
+
+/// What a solve did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CgReport {
+    /// Iterations run.
+    pub iterations: usize,
+    /// ‖r‖ / ‖b‖ at the end (0 when b = 0).
+    pub relative_residual: f64,
+    /// Whether the tolerance was reached.
+    pub converged: bool,
+}
+
+fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1] + x[2] * y[2]).sum()
+}
+
+/// Inverse of a 3×3 block, or zero when it is singular (a node no element stiffens).
+#[must_use]
+pub fn invert_block(m: &Mat3) -> Mat3 {
+    let d = det(m);
+    if d.abs() <= f64::MIN_POSITIVE {
+        return [[0.0; 3]; 3];
+    }
+    let inv = 1.0 / d;
+    [
+        [
+            (m[1][1] * m[2][2] - m[1][2] * m[2][1]) * inv,
+            (m[0][2] * m[2][1] - m[0][1] * m[2][2]) * inv,
+            (m[0][1] * m[1][2] - m[0][2] * m[1][1]) * inv,
+        ],
+        [
+            (m[1][2] * m[2][0] - m[1][0] * m[2][2]) * inv,
+            (m[0][0] * m[2][2] - m[0][2] * m[2][0]) * inv,
+            (m[0][2] * m[1][0] - m[0][0] * m[1][2]) * inv,
+        ],
+        [
+            (m[1][0] * m[2][1] - m[1][1] * m[2][0]) * inv,
+            (m[0][1] * m[2][0] - m[0][0] * m[2][1]) * inv,
+            (m[0][0] * m[1][1] - m[0][1] * m[1][0]) * inv,
+        ],
+    ]
+}
+
+/// Solves `A x = b` on the free nodes, starting from `x` (warm start), where `apply(p, out)`
+/// sets `out = A p` and `preconditioner[n]` approximates the inverse of node `n`'s diagonal block.
+pub fn solve(
+    apply: impl Fn(&[Vec3], &mut [Vec3]),
+    preconditioner: &[Mat3],
+    fixed: &FixedNodes,
+    b: &[Vec3],
+    x: &mut [Vec3],
+    settings: CgSettings,
+) -> CgReport {
+    let n = b.len();
+    let mut bb = b.to_vec();
+    fixed.project(&mut bb);
+    fixed.project(x);
+    let b_norm = dot(&bb, &bb).sqrt();
+    if b_norm == 0.0 {
+        x.fill([0.0; 3]);
+        return CgReport { iterations: 0, relative_residual: 0.0, converged: true };
+    }
+    let mut ap = vec![[0.0; 3]; n];
+    apply(x, &mut ap);
+    let mut r: Vec<Vec3> =
+        bb.iter().zip(&ap).map(|(b, a)| [b[0] - a[0], b[1] - a[1], b[2] - a[2]]).collect();
+    fixed.project(&mut r);
+    let precondition = |r: &[Vec3], z: &mut Vec<Vec3>| {
+        z.clear();
+        z.extend(r.iter().zip(preconditioner).map(|(v, m)| mul_vec(m, v)));
+        fixed.project(z);
+    };
+    let mut z = Vec::with_capacity(n);
+    precondition(&r, &mut z);
+    let mut p = z.clone();
+    let mut rz = dot(&r, &z);
+    let mut rel = dot(&r, &r).sqrt() / b_norm;
+    let mut it = 0;
+    while rel > settings.tolerance && it < settings.max_iterations {
+        ap.fill([0.0; 3]);
+        apply(&p, &mut ap);
+        fixed.project(&mut ap);
+        let pap = dot(&p, &ap);
+        if pap <= 0.0 {
+            break;
+        }
+        let alpha = rz / pap;
+        for i in 0..n {
+            for k in 0..3 {
+                x[i][k] += alpha * p[i][k];
+                r[i][k] -= alpha * ap[i][k];
+            }
+        }
+        precondition(&r, &mut z);
+        let rz_new = dot(&r, &z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        for i in 0..n {
+            for k in 0..3 {
+                p[i][k] = z[i][k] + beta * p[i][k];
+            }
+        }
+        rel = dot(&r, &r).sqrt() / b_norm;
+        it += 1;
+    }
+    CgReport { iterations: it, relative_residual: rel, converged: rel <= settings.tolerance }
+}

@@ -1,0 +1,67 @@
+//! Fixed nodes, applied by projection: a fixed node's velocity and displacement stay zero, its
+//! rows and columns of the system are replaced by the identity, its residual by zero.
+
+use incise_math::Vec3;
+
+/// Which nodes are held in place.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct FixedNodes {
+    fixed: Vec<bool>,
+}
+
+impl FixedNodes {
+    /// No node fixed, for `nodes` nodes.
+    #[must_use]
+    pub fn none(nodes: usize) -> Self {
+        Self { fixed: vec![false; nodes] }
+    }
+
+    /// Nodes whose rest position satisfies `inside`.
+    #[must_use]
+    pub fn by_position(rest: &[Vec3], inside: impl Fn(&Vec3) -> bool) -> Self {
+        Self { fixed: rest.iter().map(inside).collect() }
+    }
+
+    /// Nodes within `tolerance` of the plane `x[axis] = value`.
+    #[must_use]
+    pub fn plane(rest: &[Vec3], axis: usize, value: f64, tolerance: f64) -> Self {
+        Self::by_position(rest, |p| (p[axis] - value).abs() <= tolerance)
+    }
+
+    /// Nodes inside the axis-aligned box `[lo, hi]`.
+    #[must_use]
+    pub fn aabb(rest: &[Vec3], lo: Vec3, hi: Vec3) -> Self {
+        Self::by_position(rest, |p| (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a]))
+    }
+
+    /// Adds the nodes of `other`.
+    #[must_use]
+    pub fn union(mut self, other: &Self) -> Self {
+        for (a, b) in self.fixed.iter_mut().zip(&other.fixed) {
+            *a |= *b;
+        }
+        self
+    }
+
+    /// True when node `n` is fixed.
+    #[inline]
+    #[must_use]
+    pub fn is_fixed(&self, n: usize) -> bool {
+        self.fixed[n]
+    }
+
+    /// Number of fixed nodes.
+    #[must_use]
+    pub fn count(&self) -> usize {
+        self.fixed.iter().filter(|&&f| f).count()
+    }
+
+    /// Zeroes the fixed nodes' entries of `v`.
+    pub fn project(&self, v: &mut [Vec3]) {
+        for (x, &f) in v.iter_mut().zip(&self.fixed) {
+            if f {
+                *x = [0.0; 3];
+            }
+        }
+    }
+}

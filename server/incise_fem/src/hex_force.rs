@@ -1,0 +1,200 @@
+//! Hexahedral force fields on the branched grid, each element with its own condensed stiffness
+//! (partially filled and superimposed elements included; Nesme 2006 via Jeřábková 2010 §2.2).
+//!
+//! - [`Formulation::Linear`]: `f = −K (x − x₀)`; rotations produce spurious forces.
+//! - [`Formulation::Corotational`]: the element rotation `R` is extracted from the deformation
+//!   gradient at the element centre, `F = Σₐ xₐ ⊗ ∇Nₐ(centre)`, by the inversion-safe method of
+//!   `incise_math::rotation` (warm-started from the previous call); forces are
+//!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit solves is `R K Rᵀ` per element.
+
+use crate::model::HexModel;
+use crate::parallel::map_elements;
+use incise_grid::hex8::corner;
+use incise_math::Vec3;
+use incise_math::mat3::{Mat3, mul_transpose_vec, mul_vec};
+use incise_math::rotation::{Quat, nearest_rotation};
+
+/// How element rotations are treated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Formulation {
+    /// Small-strain linear elasticity.
+    Linear,
+    /// Linear elasticity in each element's rotated frame.
+    Corotational,
+}
+
+/// Iterations allowed to refine an element rotation from its warm start.
+const ROTATION_ITERATIONS: usize = 100;
+
+/// Per-element rotations and the shape-function gradients at the element centre.
+#[derive(Clone, Debug)]
+pub struct HexForceField {
+    formulation: Formulation,
+    rotations: Vec<Quat>,
+    matrices: Vec<Mat3>,
+    centre_gradient: [Vec3; 8],
+}
+
+impl HexForceField {
+    /// A force field for `model`, all rotations at identity.
+    #[must_use]
+    pub fn new(model: &HexModel, formulation: Formulation) -> Self {
+        let s = model.element_size;
+        let centre_gradient = std::array::from_fn(|c| {
+            let b = corner(c);
+            std::array::from_fn(|a| if b[a] == 1 { 0.25 / s[a] } else { -0.25 / s[a] })
+        });
+        let n = model.elements.len();
+        Self {
+            formulation,
+            rotations: vec![Quat::IDENTITY; n],
+            matrices: vec![incise_math::mat3::IDENTITY; n],
+            centre_gradient,
+        }
+    }
+
+    /// The formulation.
+    #[must_use]
+    pub fn formulation(&self) -> Formulation {
+        self.formulation
+    }
+
+    /// Rotation of element `e` (identity for the linear formulation).
+    #[must_use]
+    pub fn rotation(&self, e: usize) -> &Mat3 {
+        &self.matrices[e]
+    }
+
+    /// Re-extracts every element's rotation from positions `x` (no-op when linear).
+    pub fn update_rotations(&mut self, model: &HexModel, x: &[Vec3]) {
+        if self.formulation == Formulation::Linear {
+            return;
+        }
+        let grad = self.centre_gradient;
+        let previous = &self.rotations;
+        let updated: Vec<Quat> = map_elements(model.elements.len(), |e| {
+            let el = &model.elements[e];
+            let mut f = [[0.0; 3]; 3];
+            for (c, &n) in el.nodes.iter().enumerate() {
+                let p = x[n as usize];
+                for r in 0..3 {
+                    for k in 0..3 {
+                        f[r][k] += p[r] * grad[c][k];
+                    }
+                }
+            }
+            let mut q = previous[e];
+            nearest_rotation(&f, &mut q, ROTATION_ITERATIONS);
+            q
+        });
+        self.matrices = updated.iter().map(Quat::to_matrix).collect();
+        self.rotations = updated;
+    }
+
+    /// Displacement of element `e` in its rotated frame, `Rᵀx − x₀`, as a 24-vector.
+    fn local_displacement(&self, model: &HexModel, e: usize, x: &[Vec3]) -> [f64; 24] {
+        let el = &model.elements[e];
+        let r = &self.matrices[e];
+        let mut u = [0.0; 24];
+        for (c, &n) in el.nodes.iter().enumerate() {
+            let (p, p0) = (x[n as usize], model.rest[n as usize]);
+            let q =
+                if self.formulation == Formulation::Linear { p } else { mul_transpose_vec(r, &p) };
+            u[3 * c] = q[0] - p0[0];
+            u[3 * c + 1] = q[1] - p0[1];
+            u[3 * c + 2] = q[2] - p0[2];
+        }
+        u
+    }
+
+    /// Elastic forces of element `e` on its 8 corners.
+    fn element_forces(&self, model: &HexModel, e: usize, x: &[Vec3]) -> [Vec3; 8] {
+        let u = self.local_displacement(model, e, x);
+        let g = model.elements[e].stiffness.mul_vec(&u);
+        let r = &self.matrices[e];
+        std::array::from_fn(|c| {
+            let gc = [-g[3 * c], -g[3 * c + 1], -g[3 * c + 2]];
+            if self.formulation == Formulation::Linear { gc } else { mul_vec(r, &gc) }
+        })
+    }
+
+    /// `f += elastic forces at positions x` (call [`HexForceField::update_rotations`] first).
+    pub fn add_forces(&self, model: &HexModel, x: &[Vec3], f: &mut [Vec3]) {
+        let per_element = map_elements(model.elements.len(), |e| self.element_forces(model, e, x));
+        scatter(model, &per_element, f);
+    }
+
+    /// `out += scale · K(x) p`, with `K` the (rotated) stiffness, element by element.
+    pub fn add_stiffness_times(&self, model: &HexModel, scale: f64, p: &[Vec3], out: &mut [Vec3]) {
+        let per_element = map_elements(model.elements.len(), |e| {
+            let el = &model.elements[e];
+            let r = &self.matrices[e];
+            let mut local = [0.0; 24];
+            for (c, &n) in el.nodes.iter().enumerate() {
+                let v = p[n as usize];
+                let q = if self.formulation == Formulation::Linear {
+                    v
+                } else {
+                    mul_transpose_vec(r, &v)
+                };
+                local[3 * c..3 * c + 3].copy_from_slice(&q);
+            }
+            let g = el.stiffness.mul_vec(&local);
+            std::array::from_fn(|c| {
+                let gc = [scale * g[3 * c], scale * g[3 * c + 1], scale * g[3 * c + 2]];
+                if self.formulation == Formulation::Linear { gc } else { mul_vec(r, &gc) }
+            })
+        });
+        scatter(model, &per_element, out);
+    }
+
+    /// The 3×3 diagonal blocks of the (rotated) stiffness, per node: `R K_cc Rᵀ` summed.
+    #[must_use]
+    pub fn diagonal_blocks(&self, model: &HexModel) -> Vec<Mat3> {
+        let mut out = vec![[[0.0; 3]; 3]; model.node_count()];
+        for (e, el) in model.elements.iter().enumerate() {
+            let r = &self.matrices[e];
+            for (c, &n) in el.nodes.iter().enumerate() {
+                let mut k: Mat3 = std::array::from_fn(|i| {
+                    std::array::from_fn(|j| el.stiffness.get(3 * c + i, 3 * c + j))
+                });
+                if self.formulation == Formulation::Corotational {
+                    k = incise_math::mat3::mul(
+                        &incise_math::mat3::mul(r, &k),
+                        &incise_math::mat3::transpose(r),
+                    );
+                }
+                let d = &mut out[n as usize];
+                for i in 0..3 {
+                    for j in 0..3 {
+                        d[i][j] += k[i][j];
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Elastic energy `½ Σₑ uₑᵀ Kₑ uₑ` (J), with `u` in each element's rotated frame.
+    #[must_use]
+    pub fn energy(&self, model: &HexModel, x: &[Vec3]) -> f64 {
+        let per_element = map_elements(model.elements.len(), |e| {
+            let u = self.local_displacement(model, e, x);
+            let g = model.elements[e].stiffness.mul_vec(&u);
+            0.5 * u.iter().zip(g.iter()).map(|(a, b)| a * b).sum::<f64>()
+        });
+        per_element.iter().sum()
+    }
+}
+
+/// Adds per-element corner vectors into node vectors, in element order (deterministic).
+fn scatter(model: &HexModel, per_element: &[[Vec3; 8]], out: &mut [Vec3]) {
+    for (el, fs) in model.elements.iter().zip(per_element) {
+        for (c, &n) in el.nodes.iter().enumerate() {
+            let o = &mut out[n as usize];
+            o[0] += fs[c][0];
+            o[1] += fs[c][1];
+            o[2] += fs[c][2];
+        }
+    }
+}

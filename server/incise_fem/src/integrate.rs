@@ -1,0 +1,324 @@
+//! Time integration and static equilibrium for the hexahedral model.
+//!
+//! - [`static_solve`]: Newton iterations to `f_int(x) + f_ext = 0` (one for the linear model),
+//!   each a CG solve with the current (rotated) stiffness; the reference answers come from it.
+//! - [`BackwardEuler`]: linearised implicit Euler (Baraff & Witkin 1998), one solve per step:
+//!   `(M + hC + h²K) Δv = h (f(x₀) − C v₀ + f_ext − h K v₀)`, `C = αM + βK` (Rayleigh),
+//!   `v₁ = v₀ + Δv`, `x₁ = x₀ + h v₁`; CG warm-started from the previous step's `Δv`.
+//! - [`explicit_step`]: symplectic Euler with lumped mass, stable below [`stable_dt`].
+//!
+//! Masses are lumped (the condensed consistent mass rows summed per node).
+
+use crate::cg::{CgReport, CgSettings, invert_block, solve};
+use crate::constraints::FixedNodes;
+use crate::hex_force::HexForceField;
+use crate::model::HexModel;
+use incise_math::Vec3;
+
+/// External loads: gravity (m/s²) on every node's lumped mass, plus per-node forces (N).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Loads {
+    /// Gravitational acceleration.
+    pub gravity: Vec3,
+    /// Extra force on each node (empty = none).
+    pub nodal: Vec<Vec3>,
+}
+
+impl Loads {
+    /// Gravity only.
+    #[must_use]
+    pub fn gravity(g: Vec3) -> Self {
+        Self { gravity: g, nodal: Vec::new() }
+    }
+
+    /// `f += external forces`.
+    pub fn add_to(&self, model: &HexModel, f: &mut [Vec3]) {
+        for (n, fi) in f.iter_mut().enumerate() {
+            let m = model.lumped_mass[n];
+            for k in 0..3 {
+                fi[k] += m * self.gravity[k];
+            }
+            if let Some(extra) = self.nodal.get(n) {
+                for k in 0..3 {
+                    fi[k] += extra[k];
+                }
+            }
+        }
+    }
+}
+
+/// Rayleigh damping `C = αM + βK`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Rayleigh {
+    /// Mass-proportional coefficient α (1/s).
+    pub alpha: f64,
+    /// Stiffness-proportional coefficient β (s).
+    pub beta: f64,
+}
+
+/// Positions and velocities of every node.
+#[derive(Clone, Debug, PartialEq)]
+pub struct State {
+    /// Positions (m).
+    pub x: Vec<Vec3>,
+    /// Velocities (m/s).
+    pub v: Vec<Vec3>,
+}
+
+impl State {
+    /// At rest in the rest configuration.
+    #[must_use]
+    pub fn at_rest(model: &HexModel) -> Self {
+        Self { x: model.rest.clone(), v: vec![[0.0; 3]; model.node_count()] }
+    }
+}
+
+/// Outcome of a static solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StaticReport {
+    /// Newton iterations run.
+    pub newton_iterations: usize,
+    /// CG iterations summed over them.
+    pub cg_iterations: usize,
+    /// Final `‖f_int + f_ext‖ / ‖f_ext‖` on the free nodes.
+    pub relative_residual: f64,
+    /// Whether `tolerance` was reached.
+    pub converged: bool,
+}
+
+fn norm(v: &[Vec3]) -> f64 {
+    v.iter().map(|x| x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sum::<f64>().sqrt()
+}
+
+/// Block-Jacobi preconditioner of `a·M + b·K`.
+fn preconditioner(
+    model: &HexModel,
+    ff: &HexForceField,
+    a: f64,
+    b: f64,
+) -> Vec<incise_math::mat3::Mat3> {
+    ff.diagonal_blocks(model)
+        .iter()
+        .zip(&model.lumped_mass)
+        .map(|(k, &m)| {
+            let mut blk = [[0.0; 3]; 3];
+            for i in 0..3 {
+                for j in 0..3 {
+                    blk[i][j] = b * k[i][j];
+                }
+                blk[i][i] += a * m;
+            }
+            invert_block(&blk)
+        })
+        .collect()
+}
+
+/// Newton iterations to static equilibrium from `x` (fixed nodes keep their positions in `x`).
+/// Stops when the residual force is below `tolerance` times the external force.
+pub fn static_solve(
+    model: &HexModel,
+    ff: &mut HexForceField,
+    fixed: &FixedNodes,
+    loads: &Loads,
+    x: &mut [Vec3],
+    tolerance: f64,
+    max_newton: usize,
+) -> StaticReport {
+    let n = model.node_count();
+    let mut f_ext = vec![[0.0; 3]; n];
+    loads.add_to(model, &mut f_ext);
+    fixed.project(&mut f_ext);
+    let scale = norm(&f_ext).max(f64::MIN_POSITIVE);
+    let mut cg_total = 0;
+    let mut rel = f64::INFINITY;
+    let mut dx = vec![[0.0; 3]; n];
+    for it in 0..max_newton {
+        ff.update_rotations(model, x);
+        let mut r = f_ext.clone();
+        ff.add_forces(model, x, &mut r);
+        fixed.project(&mut r);
+        rel = norm(&r) / scale;
+        if rel <= tolerance {
+            return StaticReport {
+                newton_iterations: it,
+                cg_iterations: cg_total,
+                relative_residual: rel,
+                converged: true,
+            };
+        }
+        let pre = preconditioner(model, ff, 0.0, 1.0);
+        dx.fill([0.0; 3]);
+        let ffr = &*ff;
+        let report = solve(
+            |p, out| {
+                out.fill([0.0; 3]);
+                ffr.add_stiffness_times(model, 1.0, p, out);
+            },
+            &pre,
+            fixed,
+            &r,
+            &mut dx,
+            CgSettings {
+                tolerance: (0.1 * tolerance).max(1e-14),
+                max_iterations: 20 * model.dof_count(),
+            },
+        );
+        cg_total += report.iterations;
+        for (xi, d) in x.iter_mut().zip(&dx) {
+            for k in 0..3 {
+                xi[k] += d[k];
+            }
+        }
+    }
+    StaticReport {
+        newton_iterations: max_newton,
+        cg_iterations: cg_total,
+        relative_residual: rel,
+        converged: false,
+    }
+}
+
+/// Linearised backward Euler with its CG warm start.
+#[derive(Clone, Debug)]
+pub struct BackwardEuler {
+    /// Time step (s).
+    pub dt: f64,
+    /// Rayleigh damping.
+    pub damping: Rayleigh,
+    /// Linear-solve settings.
+    pub cg: CgSettings,
+    last_dv: Vec<Vec3>,
+}
+
+impl BackwardEuler {
+    /// An integrator with step `dt`.
+    #[must_use]
+    pub fn new(dt: f64, damping: Rayleigh, cg: CgSettings) -> Self {
+        Self { dt, damping, cg, last_dv: Vec::new() }
+    }
+
+    /// Advances `state` by one step.
+    pub fn step(
+        &mut self,
+        model: &HexModel,
+        ff: &mut HexForceField,
+        fixed: &FixedNodes,
+        loads: &Loads,
+        state: &mut State,
+    ) -> CgReport {
+        let n = model.node_count();
+        let h = self.dt;
+        let Rayleigh { alpha, beta } = self.damping;
+        ff.update_rotations(model, &state.x);
+        // rhs = h (f_int + f_ext − αM v − (β + h) K v)
+        let mut rhs = vec![[0.0; 3]; n];
+        loads.add_to(model, &mut rhs);
+        ff.add_forces(model, &state.x, &mut rhs);
+        for (i, r) in rhs.iter_mut().enumerate() {
+            let m = model.lumped_mass[i];
+            for k in 0..3 {
+                r[k] -= alpha * m * state.v[i][k];
+            }
+        }
+        ff.add_stiffness_times(model, -(beta + h), &state.v, &mut rhs);
+        for r in &mut rhs {
+            for k in 0..3 {
+                r[k] *= h;
+            }
+        }
+        let a = 1.0 + h * alpha;
+        let b = h * beta + h * h;
+        let pre = preconditioner(model, ff, a, b);
+        if self.last_dv.len() != n {
+            self.last_dv = vec![[0.0; 3]; n];
+        }
+        let mut dv = std::mem::take(&mut self.last_dv);
+        let ffr = &*ff;
+        let report = solve(
+            |p, out| {
+                for (i, o) in out.iter_mut().enumerate() {
+                    let m = a * model.lumped_mass[i];
+                    *o = [m * p[i][0], m * p[i][1], m * p[i][2]];
+                }
+                ffr.add_stiffness_times(model, b, p, out);
+            },
+            &pre,
+            fixed,
+            &rhs,
+            &mut dv,
+            self.cg,
+        );
+        for i in 0..n {
+            if fixed.is_fixed(i) {
+                state.v[i] = [0.0; 3];
+                continue;
+            }
+            for k in 0..3 {
+                state.v[i][k] += dv[i][k];
+                state.x[i][k] += h * state.v[i][k];
+            }
+        }
+        self.last_dv = dv;
+        report
+    }
+}
+
+/// One symplectic-Euler step with lumped mass and mass-proportional damping α:
+/// `v += h M⁻¹ (f − αMv)`, `x += h v`.
+pub fn explicit_step(
+    model: &HexModel,
+    ff: &mut HexForceField,
+    fixed: &FixedNodes,
+    loads: &Loads,
+    alpha: f64,
+    dt: f64,
+    state: &mut State,
+) {
+    let n = model.node_count();
+    ff.update_rotations(model, &state.x);
+    let mut f = vec![[0.0; 3]; n];
+    loads.add_to(model, &mut f);
+    ff.add_forces(model, &state.x, &mut f);
+    for i in 0..n {
+        if fixed.is_fixed(i) || model.lumped_mass[i] <= 0.0 {
+            state.v[i] = [0.0; 3];
+            continue;
+        }
+        let inv = 1.0 / model.lumped_mass[i];
+        for k in 0..3 {
+            state.v[i][k] += dt * (f[i][k] * inv - alpha * state.v[i][k]);
+            state.x[i][k] += dt * state.v[i][k];
+        }
+    }
+}
+
+/// Largest stable explicit step `2 / √λ_max(M⁻¹K)`, `λ_max` by power iteration (rest stiffness).
+#[must_use]
+pub fn stable_dt(model: &HexModel, ff: &HexForceField, fixed: &FixedNodes) -> f64 {
+    let n = model.node_count();
+    let mut v: Vec<Vec3> = (0..n)
+        .map(|i| [1.0 + (i % 7) as f64, 1.0 + (i % 5) as f64, 1.0 + (i % 3) as f64])
+        .collect();
+    fixed.project(&mut v);
+    let mut lambda = 0.0;
+    for _ in 0..200 {
+        let nv = norm(&v);
+        if nv == 0.0 {
+            return f64::INFINITY;
+        }
+        for x in &mut v {
+            *x = [x[0] / nv, x[1] / nv, x[2] / nv];
+        }
+        let mut kv = vec![[0.0; 3]; n];
+        ff.add_stiffness_times(model, 1.0, &v, &mut kv);
+        for (i, x) in kv.iter_mut().enumerate() {
+            let m = model.lumped_mass[i];
+            let inv = if m > 0.0 { 1.0 / m } else { 0.0 };
+            *x = [x[0] * inv, x[1] * inv, x[2] * inv];
+        }
+        fixed.project(&mut kv);
+        lambda = norm(&kv);
+        v = kv;
+    }
+    2.0 / lambda.sqrt()
+}

@@ -18,3 +18,4 @@ mod parallel;
 pub use constraints::FixedNodes;
 pub use hex_force::{Formulation, HexForceField};
 pub use model::HexModel;
+pub use parallel::set_thread_override;

@@ -4,13 +4,28 @@
 /// Below this many elements a second thread costs more than it saves.
 const PARALLEL_MIN: usize = 512;
 
-/// Threads to use: `INCISE_THREADS` if set (tests use it to check bit-identity), else up to 2.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// 0 = automatic; otherwise the thread count every element loop uses.
+static OVERRIDE: AtomicUsize = AtomicUsize::new(0);
+
+/// Forces element loops to `threads` threads (`None` = automatic: up to 2). Results are the same
+/// either way; tests use this to prove it.
+pub fn set_thread_override(threads: Option<usize>) {
+    OVERRIDE.store(threads.unwrap_or(0), Ordering::Relaxed);
+}
+
+/// Threads to use: the override, else `INCISE_THREADS`, else up to 2.
 fn threads() -> usize {
-    std::env::var("INCISE_THREADS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get().min(2)))
-        .max(1)
+    match OVERRIDE.load(Ordering::Relaxed) {
+        0 => std::env::var("INCISE_THREADS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get().min(2)))
+            .max(1),
+        n => n,
+    }
 }
 
 /// `(0..n).map(f)` computed on up to [`threads`] threads, results in index order.

@@ -572,9 +572,8 @@ impl BranchedGrid {
         }
     }
 
-    /// A copy of the fine level as a label volume (empty voxels 0, others their material's label),
-    /// for rebuilding from scratch after edits. Severed links are carried by
-    /// [`BranchedGrid::rebuild`], not by the volume.
+    /// The fine level's current labels (`x` fastest; removed voxels are 0), e.g. to write the cut
+    /// organ back to a volume file. Severed links are not labels and are not included.
     #[must_use]
     pub fn fine_labels(&self) -> Vec<u16> {
         self.fine

@@ -8,3 +8,9 @@ use std::path::PathBuf;
 pub fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
 }
+
+/// Absolute path of a committed scene file in `deploy/scenes/`.
+#[must_use]
+pub fn scene(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("deploy").join("scenes").join(name)
+}

@@ -83,7 +83,10 @@ fn liver_cut_updates_equal_a_rebuild() {
     let changes = grid.apply(&GridEdit { remove_voxels: remove, sever_links: vec![] }).unwrap();
     assert!(changes.voxels_removed > 100, "the blade removes voxels ({})", changes.voxels_removed);
     let labels = grid.fine_labels();
-    assert_eq!(labels.iter().filter(|&&l| l != 0).count(), v.foreground_count() - changes.voxels_removed);
+    assert_eq!(
+        labels.iter().filter(|&&l| l != 0).count(),
+        v.foreground_count() - changes.voxels_removed
+    );
     compare_grids(&grid, &grid.rebuild(), 1e-12).unwrap();
     let changes = grid.apply(&GridEdit { remove_voxels: vec![], sever_links: sever }).unwrap();
     assert!(changes.links_severed > 100);

@@ -4,7 +4,6 @@
 /// Below this many elements a second thread costs more than it saves.
 const PARALLEL_MIN: usize = 512;
 
-
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// 0 = automatic; otherwise the thread count every element loop uses.

@@ -16,12 +16,16 @@ const SIZE: Vec3 = [0.15, 0.10, 0.08];
 fn scene_b(cells: [usize; 3]) -> (HexModel, FixedNodes, Loads) {
     let spacing = std::array::from_fn(|a| SIZE[a] / cells[a] as f64);
     let v = from_fn(cells, spacing, |_, _, _| 1);
-    let grid = BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0)), 0).unwrap();
+    let grid =
+        BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0)), 0)
+            .unwrap();
     let model = HexModel::from_grid(&grid);
     let fixed = FixedNodes::plane(&model.rest, 2, SIZE[2], 1e-9);
     let corner = [SIZE[0], SIZE[1], 0.0];
     let patch: Vec<usize> = (0..model.node_count())
-        .filter(|&n| (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt() <= 0.022)
+        .filter(|&n| {
+            (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt() <= 0.022
+        })
         .collect();
     let dir = 0.5 / 3f64.sqrt() / patch.len() as f64;
     let mut nodal = vec![[0.0; 3]; model.node_count()];
@@ -58,7 +62,11 @@ fn implicit_euler_settles_on_the_static_answer() {
     for dt in [1e-3, 1e-2] {
         let mut ff = HexForceField::new(&model, Formulation::Corotational);
         let mut state = State::at_rest(&model);
-        let mut be = BackwardEuler::new(dt, Rayleigh { alpha: 2.0, beta: 0.01 }, CgSettings { tolerance: 1e-10, max_iterations: 5000 });
+        let mut be = BackwardEuler::new(
+            dt,
+            Rayleigh { alpha: 2.0, beta: 0.01 },
+            CgSettings { tolerance: 1e-10, max_iterations: 5000 },
+        );
         let steps = (8.0 / dt) as usize;
         for _ in 0..steps {
             be.step(&model, &mut ff, &fixed, &loads, &mut state);
@@ -66,7 +74,10 @@ fn implicit_euler_settles_on_the_static_answer() {
         }
         let d = displacement(&model, &state.x, corner);
         println!("dt = {dt}: corner {:.3} mm after {steps} steps", d * 1e3);
-        assert!((d - reference).abs() <= 0.005 * reference, "dt = {dt}: {d:e} vs static {reference:e}");
+        assert!(
+            (d - reference).abs() <= 0.005 * reference,
+            "dt = {dt}: {d:e} vs static {reference:e}"
+        );
     }
 }
 
@@ -78,7 +89,8 @@ fn results_do_not_depend_on_the_thread_count() {
         incise_fem::set_thread_override(threads.parse().ok());
         let mut ff = HexForceField::new(&model, Formulation::Corotational);
         let mut state = State::at_rest(&model);
-        let mut be = BackwardEuler::new(1e-2, Rayleigh { alpha: 2.0, beta: 0.01 }, CgSettings::default());
+        let mut be =
+            BackwardEuler::new(1e-2, Rayleigh { alpha: 2.0, beta: 0.01 }, CgSettings::default());
         for _ in 0..5 {
             be.step(&model, &mut ff, &fixed, &loads, &mut state);
         }
@@ -86,7 +98,13 @@ fn results_do_not_depend_on_the_thread_count() {
     };
     let one = run("1");
     let two = run("2");
-    assert!(one.x.iter().zip(&two.x).all(|(a, b)| a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits())), "positions differ bitwise");
+    assert!(
+        one.x
+            .iter()
+            .zip(&two.x)
+            .all(|(a, b)| a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits())),
+        "positions differ bitwise"
+    );
 }
 
 #[test]
@@ -98,12 +116,14 @@ fn an_inverted_corner_recovers_its_rest_shape() {
     let mut state = State::at_rest(&model);
     state.x[corner][2] += 0.05; // 50 mm up through a 27 mm-tall element
     state.x[corner][0] -= 0.06;
-    let mut be = BackwardEuler::new(1e-2, Rayleigh { alpha: 5.0, beta: 0.02 }, CgSettings::default());
+    let mut be =
+        BackwardEuler::new(1e-2, Rayleigh { alpha: 5.0, beta: 0.02 }, CgSettings::default());
     let none = Loads::gravity([0.0; 3]);
     for _ in 0..2000 {
         be.step(&model, &mut ff, &fixed, &none, &mut state);
         assert!(state.x.iter().all(|p| p.iter().all(|c| c.is_finite())), "blew up");
     }
-    let worst = (0..model.node_count()).map(|n| displacement(&model, &state.x, n)).fold(0.0, f64::max);
+    let worst =
+        (0..model.node_count()).map(|n| displacement(&model, &state.x, n)).fold(0.0, f64::max);
     assert!(worst < 1e-4, "after release the block is {worst:e} m from its rest shape");
 }

@@ -100,6 +100,14 @@ pub enum IoError {
         /// The file.
         file: String,
     },
+    /// A scene file that is not a valid `SceneConfig` (the message names the line and key).
+    #[error("{source}")]
+    Scene {
+        /// The scene file.
+        file: String,
+        /// Why it was refused.
+        source: incise_sim::SceneError,
+    },
 }
 
 impl IoError {
@@ -115,6 +123,7 @@ impl IoError {
             | Self::BadLabel { file, .. }
             | Self::BadSpacing { file, .. }
             | Self::Volume { file, .. }
+            | Self::Scene { file, .. }
             | Self::UnknownFormat { file } => file,
         }
     }

@@ -5,13 +5,15 @@
 //! and what in it is wrong. Decoders never panic and never allocate more than the header says the
 //! data needs: a header announcing more voxels than the file holds is reported as truncated before
 //! the label vector is allocated, and gzip streams are inflated only as far as the header asks.
-//! Gzip is recognised by its magic bytes, whatever the file is called.
+//! Gzip is recognised by its magic bytes, whatever the file is called. Scene files (TOML) are
+//! read with the volume they name ([`read_scene`]).
 
 mod error;
 mod gzip;
 mod inr;
 mod nifti;
 mod samples;
+mod scene;
 
 #[cfg(test)]
 mod fuzz;
@@ -19,6 +21,7 @@ mod fuzz;
 pub use error::IoError;
 pub use inr::{decode_inr, encode_inr, read_inr, write_inr};
 pub use nifti::{decode_nifti, encode_nifti, read_nifti, write_nifti};
+pub use scene::read_scene;
 
 use incise_grid::LabelVolume;
 use std::path::Path;

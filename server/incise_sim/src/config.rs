@@ -1,0 +1,535 @@
+//! `SceneConfig`: a scene described in TOML — the volume and its striding, the grid level, label →
+//! material, the model, the integrator, damping, gravity, fixed regions and loads.
+//!
+//! Unknown keys and out-of-range values are errors that name the key and the line of the file:
+//! the raw document is deserialised with spans (`toml::Spanned`), then checked into the plain
+//! [`SceneConfig`] the simulation uses.
+
+use serde::Deserialize;
+use std::ops::Range;
+use toml::Spanned;
+
+/// A scene file that cannot be used.
+#[derive(Debug, thiserror::Error, Clone, PartialEq, Eq)]
+pub enum SceneError {
+    /// Not TOML, an unknown key, or a value of the wrong type.
+    #[error("{file}:{line}: {message}")]
+    Parse {
+        /// The file (or name given for the text).
+        file: String,
+        /// 1-based line, 0 when unknown.
+        line: usize,
+        /// What was wrong.
+        message: String,
+    },
+    /// A key whose value is out of range or inconsistent.
+    #[error("{file}:{line}: `{key}` {message}")]
+    Invalid {
+        /// The file.
+        file: String,
+        /// 1-based line of the value.
+        line: usize,
+        /// The key, dotted (`integrator.dt`).
+        key: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// The scene could not be built (its volume, grid or materials).
+    #[error("{file}: {message}")]
+    Build {
+        /// The file.
+        file: String,
+        /// What failed.
+        message: String,
+    },
+}
+
+/// Where the scene's label volume comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VolumeSpec {
+    /// A label volume file (NIfTI or INR), relative to the scene file's folder.
+    File {
+        /// The path as written in the scene.
+        path: String,
+        /// Per-axis stride after cropping to the foreground.
+        stride: [usize; 3],
+        /// Labels to keep (empty = all).
+        labels: Vec<u16>,
+    },
+    /// A box of `voxels` cells filling `size_m` (label 1).
+    Block {
+        /// Edge lengths (m).
+        size_m: [f64; 3],
+        /// Voxels per axis.
+        voxels: [usize; 3],
+    },
+}
+
+/// The mechanical model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModelKind {
+    /// Small-strain linear hexahedra.
+    Linear,
+    /// Corotational hexahedra.
+    Corotational,
+}
+
+/// The time integrator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IntegratorKind {
+    /// Linearised backward Euler, one solve per step.
+    ImplicitEuler,
+    /// Symplectic Euler (explicit).
+    Explicit,
+    /// Newton iterations to static equilibrium every step (for references).
+    Static,
+}
+
+/// A tissue of one label.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MaterialSpec {
+    /// The label it applies to.
+    pub label: u16,
+    /// The material.
+    pub material: incise_grid::Material,
+}
+
+/// A region of fixed nodes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FixedSpec {
+    /// Nodes on the plane `x[axis] = value` (m).
+    Plane {
+        /// 0 = x, 1 = y, 2 = z.
+        axis: usize,
+        /// Coordinate of the plane (m, grid frame).
+        value: f64,
+    },
+    /// Nodes inside the box `[min, max]` (m, grid frame).
+    Box {
+        /// Lower corner.
+        min: [f64; 3],
+        /// Upper corner.
+        max: [f64; 3],
+    },
+}
+
+/// A force spread evenly over the nodes within `radius` of `centre`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PatchLoad {
+    /// Centre of the patch (m, grid frame).
+    pub centre: [f64; 3],
+    /// Radius (m).
+    pub radius: f64,
+    /// Total force (N).
+    pub force: [f64; 3],
+}
+
+/// A validated scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneConfig {
+    /// Scene name (used in keys and reports).
+    pub name: String,
+    /// The label volume.
+    pub volume: VolumeSpec,
+    /// Grid level the mechanics runs on.
+    pub level: u32,
+    /// Label → material.
+    pub materials: Vec<MaterialSpec>,
+    /// The model.
+    pub model: ModelKind,
+    /// The integrator.
+    pub integrator: IntegratorKind,
+    /// Time step (s).
+    pub dt: f64,
+    /// CG relative tolerance.
+    pub cg_tolerance: f64,
+    /// Rayleigh damping α (1/s).
+    pub rayleigh_alpha: f64,
+    /// Rayleigh damping β (s).
+    pub rayleigh_beta: f64,
+    /// Gravity (m/s²).
+    pub gravity: [f64; 3],
+    /// Fixed regions.
+    pub fixed: Vec<FixedSpec>,
+    /// Patch loads.
+    pub loads: Vec<PatchLoad>,
+}
+
+// --- the raw document, with spans --------------------------------------------------------------
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    name: String,
+    volume: RawVolume,
+    #[serde(default)]
+    level: Option<Spanned<i64>>,
+    #[serde(default)]
+    materials: Vec<RawMaterial>,
+    #[serde(default)]
+    model: Option<RawModel>,
+    integrator: RawIntegrator,
+    #[serde(default)]
+    gravity: Option<Spanned<[f64; 3]>>,
+    #[serde(default)]
+    fixed: Vec<RawFixed>,
+    #[serde(default)]
+    loads: Vec<RawLoad>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawVolume {
+    file: Option<String>,
+    stride: Option<Spanned<[i64; 3]>>,
+    #[serde(default)]
+    labels: Vec<u16>,
+    procedural: Option<Spanned<String>>,
+    size_m: Option<Spanned<[f64; 3]>>,
+    voxels: Option<Spanned<[i64; 3]>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMaterial {
+    label: Spanned<i64>,
+    youngs_modulus: Spanned<f64>,
+    poisson_ratio: Spanned<f64>,
+    density: Spanned<f64>,
+    #[serde(default)]
+    rayleigh_mass: Option<Spanned<f64>>,
+    #[serde(default)]
+    rayleigh_stiffness: Option<Spanned<f64>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawModel {
+    kind: Spanned<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawIntegrator {
+    kind: Spanned<String>,
+    dt: Spanned<f64>,
+    #[serde(default)]
+    cg_tolerance: Option<Spanned<f64>>,
+    #[serde(default)]
+    rayleigh_alpha: Option<Spanned<f64>>,
+    #[serde(default)]
+    rayleigh_beta: Option<Spanned<f64>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFixed {
+    plane: Option<Spanned<String>>,
+    value: Option<Spanned<f64>>,
+    min: Option<[f64; 3]>,
+    max: Option<Spanned<[f64; 3]>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawLoad {
+    centre: [f64; 3],
+    radius: Spanned<f64>,
+    force: [f64; 3],
+}
+
+/// 1-based line of byte offset `at` in `text`.
+fn line_of(text: &str, at: usize) -> usize {
+    text[..at.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
+}
+
+struct Checker<'a> {
+    text: &'a str,
+    file: &'a str,
+}
+
+impl Checker<'_> {
+    fn invalid(&self, span: Range<usize>, key: &str, message: impl Into<String>) -> SceneError {
+        SceneError::Invalid {
+            file: self.file.to_owned(),
+            line: line_of(self.text, span.start),
+            key: key.to_owned(),
+            message: message.into(),
+        }
+    }
+
+    fn positive(&self, v: &Spanned<f64>, key: &str) -> Result<f64, SceneError> {
+        let x = *v.get_ref();
+        if x.is_finite() && x > 0.0 {
+            Ok(x)
+        } else {
+            Err(self.invalid(v.span(), key, format!("is {x}; it must be finite and positive")))
+        }
+    }
+
+    fn non_negative(
+        &self,
+        v: Option<&Spanned<f64>>,
+        key: &str,
+        default: f64,
+    ) -> Result<f64, SceneError> {
+        let Some(v) = v else { return Ok(default) };
+        let x = *v.get_ref();
+        if x.is_finite() && x >= 0.0 {
+            Ok(x)
+        } else {
+            Err(self.invalid(v.span(), key, format!("is {x}; it must be finite and non-negative")))
+        }
+    }
+
+    fn counts(&self, v: &Spanned<[i64; 3]>, key: &str, max: i64) -> Result<[usize; 3], SceneError> {
+        let a = *v.get_ref();
+        if a.iter().all(|&n| (1..=max).contains(&n)) {
+            Ok(a.map(|n| n as usize))
+        } else {
+            Err(self.invalid(
+                v.span(),
+                key,
+                format!("is {a:?}; each entry must be between 1 and {max}"),
+            ))
+        }
+    }
+}
+
+impl SceneConfig {
+    /// Parses and checks a scene; `file` names the text in errors.
+    pub fn from_toml(text: &str, file: &str) -> Result<Self, SceneError> {
+        let raw: RawScene = toml::from_str(text).map_err(|e| SceneError::Parse {
+            file: file.to_owned(),
+            line: e.span().map_or(0, |s| line_of(text, s.start)),
+            message: e.message().trim().to_owned(),
+        })?;
+        let c = Checker { text, file };
+        let volume = if let Some(path) = raw.volume.file {
+            if let Some(p) = &raw.volume.procedural {
+                return Err(c.invalid(
+                    p.span(),
+                    "volume.procedural",
+                    "cannot be given together with volume.file",
+                ));
+            }
+            let stride = match &raw.volume.stride {
+                Some(s) => c.counts(s, "volume.stride", 64)?,
+                None => [1, 1, 1],
+            };
+            VolumeSpec::File { path, stride, labels: raw.volume.labels }
+        } else {
+            let Some(kind) = &raw.volume.procedural else {
+                return Err(SceneError::Parse {
+                    file: file.to_owned(),
+                    line: 0,
+                    message: "`volume` needs `file` or `procedural`".into(),
+                });
+            };
+            if kind.get_ref() != "block" {
+                return Err(c.invalid(
+                    kind.span(),
+                    "volume.procedural",
+                    format!("is \"{}\"; the known volume is \"block\"", kind.get_ref()),
+                ));
+            }
+            let (Some(size), Some(voxels)) = (&raw.volume.size_m, &raw.volume.voxels) else {
+                return Err(c.invalid(
+                    kind.span(),
+                    "volume.procedural",
+                    "\"block\" needs `size_m` and `voxels`",
+                ));
+            };
+            let s = *size.get_ref();
+            if !s.iter().all(|&x| x.is_finite() && x > 0.0) {
+                return Err(c.invalid(
+                    size.span(),
+                    "volume.size_m",
+                    format!("is {s:?}; every edge must be finite and positive"),
+                ));
+            }
+            VolumeSpec::Block { size_m: s, voxels: c.counts(voxels, "volume.voxels", 4096)? }
+        };
+        let level = match &raw.level {
+            Some(l) if !(0..=i64::from(incise_grid::grid::MAX_LEVELS)).contains(l.get_ref()) => {
+                return Err(c.invalid(
+                    l.span(),
+                    "level",
+                    format!(
+                        "is {}; it must be between 0 and {}",
+                        l.get_ref(),
+                        incise_grid::grid::MAX_LEVELS
+                    ),
+                ));
+            }
+            Some(l) => *l.get_ref() as u32,
+            None => 0,
+        };
+        let mut materials = Vec::new();
+        for (i, m) in raw.materials.iter().enumerate() {
+            let key = |k: &str| format!("materials[{i}].{k}");
+            let label = *m.label.get_ref();
+            if !(1..=i64::from(u16::MAX)).contains(&label) {
+                return Err(c.invalid(
+                    m.label.span(),
+                    &key("label"),
+                    format!("is {label}; labels are 1..=65535"),
+                ));
+            }
+            let nu = *m.poisson_ratio.get_ref();
+            if !(nu > -1.0 && nu < 0.5) {
+                return Err(c.invalid(
+                    m.poisson_ratio.span(),
+                    &key("poisson_ratio"),
+                    format!("is {nu}; it must lie in (-1, 0.5)"),
+                ));
+            }
+            let material = incise_grid::Material {
+                youngs_modulus: c.positive(&m.youngs_modulus, &key("youngs_modulus"))?,
+                poisson_ratio: nu,
+                density: c.positive(&m.density, &key("density"))?,
+                rayleigh_mass: c.non_negative(
+                    m.rayleigh_mass.as_ref(),
+                    &key("rayleigh_mass"),
+                    0.0,
+                )?,
+                rayleigh_stiffness: c.non_negative(
+                    m.rayleigh_stiffness.as_ref(),
+                    &key("rayleigh_stiffness"),
+                    0.0,
+                )?,
+            };
+            materials.push(MaterialSpec { label: label as u16, material });
+        }
+        if materials.is_empty() {
+            return Err(SceneError::Parse {
+                file: file.to_owned(),
+                line: 0,
+                message: "the scene has no `[[materials]]`".into(),
+            });
+        }
+        let model = match &raw.model {
+            None => ModelKind::Corotational,
+            Some(m) => match m.kind.get_ref().as_str() {
+                "linear" => ModelKind::Linear,
+                "corotational" => ModelKind::Corotational,
+                other => {
+                    return Err(c.invalid(
+                        m.kind.span(),
+                        "model.kind",
+                        format!("is \"{other}\"; expected \"linear\" or \"corotational\""),
+                    ));
+                }
+            },
+        };
+        let i = &raw.integrator;
+        let integrator = match i.kind.get_ref().as_str() {
+            "implicit-euler" => IntegratorKind::ImplicitEuler,
+            "explicit" => IntegratorKind::Explicit,
+            "static" => IntegratorKind::Static,
+            other => {
+                return Err(c.invalid(
+                    i.kind.span(),
+                    "integrator.kind",
+                    format!(
+                        "is \"{other}\"; expected \"implicit-euler\", \"explicit\" or \"static\""
+                    ),
+                ));
+            }
+        };
+        let dt = c.positive(&i.dt, "integrator.dt")?;
+        if dt > 1.0 {
+            return Err(c.invalid(
+                i.dt.span(),
+                "integrator.dt",
+                format!("is {dt} s; a step above 1 s is not an interactive scene"),
+            ));
+        }
+        let cg_tolerance = match &i.cg_tolerance {
+            Some(t) => {
+                let v = c.positive(t, "integrator.cg_tolerance")?;
+                if v >= 1.0 {
+                    return Err(c.invalid(
+                        t.span(),
+                        "integrator.cg_tolerance",
+                        format!("is {v}; it must be below 1"),
+                    ));
+                }
+                v
+            }
+            None => 1e-6,
+        };
+        let mut fixed = Vec::new();
+        for (k, f) in raw.fixed.iter().enumerate() {
+            if let Some(axis) = &f.plane {
+                let a = match axis.get_ref().as_str() {
+                    "x" => 0,
+                    "y" => 1,
+                    "z" => 2,
+                    other => {
+                        return Err(c.invalid(
+                            axis.span(),
+                            &format!("fixed[{k}].plane"),
+                            format!("is \"{other}\"; expected \"x\", \"y\" or \"z\""),
+                        ));
+                    }
+                };
+                let Some(value) = &f.value else {
+                    return Err(c.invalid(
+                        axis.span(),
+                        &format!("fixed[{k}].plane"),
+                        "needs a `value` (m)",
+                    ));
+                };
+                fixed.push(FixedSpec::Plane { axis: a, value: *value.get_ref() });
+            } else if let (Some(min), Some(max)) = (f.min, &f.max) {
+                let hi = *max.get_ref();
+                if (0..3).any(|a| hi[a] < min[a]) {
+                    return Err(c.invalid(
+                        max.span(),
+                        &format!("fixed[{k}].max"),
+                        format!("{hi:?} is below `min` {min:?}"),
+                    ));
+                }
+                fixed.push(FixedSpec::Box { min, max: hi });
+            } else {
+                return Err(SceneError::Parse {
+                    file: file.to_owned(),
+                    line: 0,
+                    message: format!("fixed[{k}] needs `plane` + `value` or `min` + `max`"),
+                });
+            }
+        }
+        let mut loads = Vec::new();
+        for (k, l) in raw.loads.iter().enumerate() {
+            loads.push(PatchLoad {
+                centre: l.centre,
+                radius: c.positive(&l.radius, &format!("loads[{k}].radius"))?,
+                force: l.force,
+            });
+        }
+        Ok(Self {
+            name: raw.name,
+            volume,
+            level,
+            materials,
+            model,
+            integrator,
+            dt,
+            cg_tolerance,
+            rayleigh_alpha: c.non_negative(
+                i.rayleigh_alpha.as_ref(),
+                "integrator.rayleigh_alpha",
+                0.0,
+            )?,
+            rayleigh_beta: c.non_negative(
+                i.rayleigh_beta.as_ref(),
+                "integrator.rayleigh_beta",
+                0.0,
+            )?,
+            gravity: raw.gravity.map_or([0.0, 0.0, -9.81], |g| *g.get_ref()),
+            fixed,
+            loads,
+        })
+    }
+}

@@ -1,0 +1,268 @@
+//! The simulation loop of one scene: the branched grid at the configured level, the hexahedral
+//! model and force field, fixed nodes, loads and the integrator, advanced one step per call.
+
+use crate::config::{FixedSpec, IntegratorKind, ModelKind, SceneConfig, SceneError, VolumeSpec};
+use incise_fem::cg::CgSettings;
+use incise_fem::integrate::{
+    BackwardEuler, Loads, Rayleigh, State, explicit_step, stable_dt, static_solve,
+};
+use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
+use incise_grid::{BranchedGrid, LabelFilter, LabelVolume, MaterialTable};
+use incise_math::Vec3;
+use std::time::Instant;
+
+/// Per-step counters (timings are measurements, not part of the deterministic state).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageCounters {
+    /// Wall time of the whole step (ns).
+    pub step_ns: u64,
+    /// Linear-solver iterations (CG) in the step.
+    pub solver_iterations: usize,
+    /// Final relative residual of the step's solve.
+    pub solver_residual: f64,
+}
+
+/// The result of one step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// Step number, from 1.
+    pub index: u64,
+    /// Simulated time at the end of the step (s).
+    pub time: f64,
+    /// Node positions (m, grid frame), in model node order.
+    pub positions: Vec<Vec3>,
+    /// FNV-1a hash of the positions' and velocities' bits: equal hashes, bit-identical state.
+    pub state_hash: u64,
+    /// Counters.
+    pub counters: StageCounters,
+}
+
+enum Integrator {
+    Implicit(BackwardEuler),
+    Explicit { dt: f64, alpha: f64 },
+    Static { tolerance: f64 },
+}
+
+/// A running scene.
+pub struct Simulation {
+    config: SceneConfig,
+    grid: BranchedGrid,
+    model: HexModel,
+    force_field: HexForceField,
+    fixed: FixedNodes,
+    loads: Loads,
+    state: State,
+    integrator: Integrator,
+    index: u64,
+}
+
+fn fnv(state: &State) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for v in state.x.iter().chain(state.v.iter()) {
+        for c in v {
+            for b in c.to_bits().to_le_bytes() {
+                h ^= u64::from(b);
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+    }
+    h
+}
+
+impl SceneConfig {
+    /// The scene's volume when it is procedural (`None` for a file, which the caller reads).
+    #[must_use]
+    pub fn procedural_volume(&self) -> Option<LabelVolume> {
+        match &self.volume {
+            VolumeSpec::Block { size_m, voxels } => {
+                let spacing = std::array::from_fn(|a| size_m[a] / voxels[a] as f64);
+                Some(incise_grid::procedural::from_fn(*voxels, spacing, |_, _, _| {
+                    incise_grid::procedural::TISSUE
+                }))
+            }
+            VolumeSpec::File { .. } => None,
+        }
+    }
+}
+
+impl Simulation {
+    /// Builds the scene on `volume` (from [`SceneConfig::procedural_volume`] or a file). Only what
+    /// the scene uses is built: the grid at its level, the model, the chosen integrator.
+    pub fn new(config: &SceneConfig, volume: &LabelVolume, file: &str) -> Result<Self, SceneError> {
+        let build = |message: String| SceneError::Build { file: file.to_owned(), message };
+        let volume = match &config.volume {
+            VolumeSpec::File { stride, labels, .. } => {
+                let mut filter = LabelFilter::abdominal_ct();
+                if !labels.is_empty() {
+                    filter = filter.keep(labels);
+                }
+                volume
+                    .filtered(&filter)
+                    .crop_and_stride(*stride)
+                    .map_err(|e| build(e.to_string()))?
+            }
+            VolumeSpec::Block { .. } => volume.clone(),
+        };
+        let mut table = MaterialTable::new();
+        for m in &config.materials {
+            table.insert(m.label, m.material);
+        }
+        let grid =
+            BranchedGrid::build(&volume, &table, config.level).map_err(|e| build(e.to_string()))?;
+        let model = HexModel::from_grid(&grid);
+        let formulation = match config.model {
+            ModelKind::Linear => Formulation::Linear,
+            ModelKind::Corotational => Formulation::Corotational,
+        };
+        let force_field = HexForceField::new(&model, formulation);
+        let tolerance = 1e-9 * grid.element_size().iter().copied().fold(0.0, f64::max);
+        let mut fixed = FixedNodes::none(model.node_count());
+        for f in &config.fixed {
+            let region = match f {
+                FixedSpec::Plane { axis, value } => {
+                    FixedNodes::plane(&model.rest, *axis, *value, tolerance)
+                }
+                FixedSpec::Box { min, max } => FixedNodes::aabb(&model.rest, *min, *max),
+            };
+            fixed = fixed.union(&region);
+        }
+        let mut nodal = vec![[0.0; 3]; model.node_count()];
+        for (k, load) in config.loads.iter().enumerate() {
+            let patch: Vec<usize> = (0..model.node_count())
+                .filter(|&n| {
+                    (0..3).map(|a| (model.rest[n][a] - load.centre[a]).powi(2)).sum::<f64>().sqrt()
+                        <= load.radius
+                })
+                .collect();
+            if patch.is_empty() {
+                return Err(build(format!(
+                    "loads[{k}]: no node lies within {} m of {:?}",
+                    load.radius, load.centre
+                )));
+            }
+            let share = 1.0 / patch.len() as f64;
+            for n in patch {
+                for a in 0..3 {
+                    nodal[n][a] += load.force[a] * share;
+                }
+            }
+        }
+        let loads = Loads { gravity: config.gravity, nodal };
+        let damping = Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta };
+        let integrator = match config.integrator {
+            IntegratorKind::ImplicitEuler => Integrator::Implicit(BackwardEuler::new(
+                config.dt,
+                damping,
+                CgSettings {
+                    tolerance: config.cg_tolerance,
+                    max_iterations: 10 * model.dof_count().max(100),
+                },
+            )),
+            IntegratorKind::Explicit => {
+                let limit = stable_dt(&model, &force_field, &fixed);
+                if config.dt > limit {
+                    return Err(build(format!(
+                        "integrator.dt = {} s is above the explicit stability limit {limit:.3e} s of this mesh; use a smaller dt or the implicit integrator",
+                        config.dt
+                    )));
+                }
+                Integrator::Explicit { dt: config.dt, alpha: config.rayleigh_alpha }
+            }
+            IntegratorKind::Static => Integrator::Static { tolerance: config.cg_tolerance },
+        };
+        let state = State::at_rest(&model);
+        Ok(Self {
+            config: config.clone(),
+            grid,
+            model,
+            force_field,
+            fixed,
+            loads,
+            state,
+            integrator,
+            index: 0,
+        })
+    }
+
+    /// Advances one step.
+    pub fn step(&mut self) -> Frame {
+        let start = Instant::now();
+        let mut counters = StageCounters::default();
+        match &mut self.integrator {
+            Integrator::Implicit(be) => {
+                let r = be.step(
+                    &self.model,
+                    &mut self.force_field,
+                    &self.fixed,
+                    &self.loads,
+                    &mut self.state,
+                );
+                counters.solver_iterations = r.iterations;
+                counters.solver_residual = r.relative_residual;
+            }
+            Integrator::Explicit { dt, alpha } => {
+                explicit_step(
+                    &self.model,
+                    &mut self.force_field,
+                    &self.fixed,
+                    &self.loads,
+                    *alpha,
+                    *dt,
+                    &mut self.state,
+                );
+            }
+            Integrator::Static { tolerance } => {
+                let r = static_solve(
+                    &self.model,
+                    &mut self.force_field,
+                    &self.fixed,
+                    &self.loads,
+                    &mut self.state.x,
+                    *tolerance,
+                    50,
+                );
+                counters.solver_iterations = r.cg_iterations;
+                counters.solver_residual = r.relative_residual;
+            }
+        }
+        self.index += 1;
+        counters.step_ns = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        Frame {
+            index: self.index,
+            time: self.index as f64 * self.config.dt,
+            positions: self.state.x.clone(),
+            state_hash: fnv(&self.state),
+            counters,
+        }
+    }
+
+    /// The scene's configuration.
+    #[must_use]
+    pub fn config(&self) -> &SceneConfig {
+        &self.config
+    }
+
+    /// The grid.
+    #[must_use]
+    pub fn grid(&self) -> &BranchedGrid {
+        &self.grid
+    }
+
+    /// The mechanical model.
+    #[must_use]
+    pub fn model(&self) -> &HexModel {
+        &self.model
+    }
+
+    /// The current state.
+    #[must_use]
+    pub fn state(&self) -> &State {
+        &self.state
+    }
+
+    /// The fixed nodes.
+    #[must_use]
+    pub fn fixed(&self) -> &FixedNodes {
+        &self.fixed
+    }
+}

@@ -53,6 +53,35 @@ impl HexForceField {
         }
     }
 
+    /// The force field for `new_model` after a topology change, keeping each surviving element's
+    /// rotation (matched by grid element id) and giving a split-off element the rotation of the
+    /// element it came from (`origin(grid_id)`, a grid id of the old model).
+    #[must_use]
+    pub fn remapped(
+        &self,
+        old_model: &HexModel,
+        new_model: &HexModel,
+        origin: impl Fn(u32) -> Option<u32>,
+    ) -> Self {
+        let mut by_grid: Vec<(u32, usize)> =
+            old_model.elements.iter().enumerate().map(|(i, e)| (e.grid_id, i)).collect();
+        by_grid.sort_unstable();
+        let find =
+            |g: u32| by_grid.binary_search_by_key(&g, |&(id, _)| id).ok().map(|k| by_grid[k].1);
+        let mut out = Self::new(new_model, self.formulation);
+        for (i, e) in new_model.elements.iter().enumerate() {
+            let old = match origin(e.grid_id) {
+                Some(o) => find(o),
+                None => find(e.grid_id),
+            };
+            if let Some(j) = old {
+                out.rotations[i] = self.rotations[j];
+                out.matrices[i] = self.matrices[j];
+            }
+        }
+        out
+    }
+
     /// The formulation.
     #[must_use]
     pub fn formulation(&self) -> Formulation {

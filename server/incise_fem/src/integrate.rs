@@ -197,6 +197,11 @@ impl BackwardEuler {
         Self { dt, damping, cg, last_dv: Vec::new() }
     }
 
+    /// Forgets the warm start (after the node numbering changed).
+    pub fn reset_warm_start(&mut self) {
+        self.last_dv.clear();
+    }
+
     /// Advances `state` by one step.
     pub fn step(
         &mut self,

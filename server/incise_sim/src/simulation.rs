@@ -7,7 +7,9 @@ use incise_fem::integrate::{
     BackwardEuler, Loads, Rayleigh, State, explicit_step, stable_dt, static_solve,
 };
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
-use incise_grid::{BranchedGrid, LabelFilter, LabelVolume, MaterialTable};
+use incise_grid::{
+    BranchedGrid, EditError, GridChanges, GridEdit, LabelFilter, LabelVolume, MaterialTable,
+};
 use incise_math::Vec3;
 use std::time::Instant;
 
@@ -85,6 +87,48 @@ impl SceneConfig {
     }
 }
 
+/// The nodes of the scene's fixed regions.
+fn fixed_nodes(config: &SceneConfig, grid: &BranchedGrid, model: &HexModel) -> FixedNodes {
+    let tolerance = 1e-9 * grid.element_size().iter().copied().fold(0.0, f64::max);
+    let mut fixed = FixedNodes::none(model.node_count());
+    for f in &config.fixed {
+        let region = match f {
+            FixedSpec::Plane { axis, value } => {
+                FixedNodes::plane(&model.rest, *axis, *value, tolerance)
+            }
+            FixedSpec::Box { min, max } => FixedNodes::aabb(&model.rest, *min, *max),
+        };
+        fixed = fixed.union(&region);
+    }
+    fixed
+}
+
+/// Gravity plus the scene's patch loads spread over the model's nodes.
+fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Loads, String> {
+    let mut nodal = vec![[0.0; 3]; model.node_count()];
+    for (k, load) in config.loads.iter().enumerate() {
+        let patch: Vec<usize> = (0..model.node_count())
+            .filter(|&n| {
+                (0..3).map(|a| (model.rest[n][a] - load.centre[a]).powi(2)).sum::<f64>().sqrt()
+                    <= load.radius
+            })
+            .collect();
+        if patch.is_empty() {
+            return Err(format!(
+                "loads[{k}]: no node lies within {} m of {:?}",
+                load.radius, load.centre
+            ));
+        }
+        let share = 1.0 / patch.len() as f64;
+        for n in patch {
+            for a in 0..3 {
+                nodal[n][a] += load.force[a] * share;
+            }
+        }
+    }
+    Ok(Loads { gravity: config.gravity, nodal })
+}
+
 impl Simulation {
     /// Builds the scene on `volume` (from [`SceneConfig::procedural_volume`] or a file). Only what
     /// the scene uses is built: the grid at its level, the model, the chosen integrator.
@@ -115,39 +159,8 @@ impl Simulation {
             ModelKind::Corotational => Formulation::Corotational,
         };
         let force_field = HexForceField::new(&model, formulation);
-        let tolerance = 1e-9 * grid.element_size().iter().copied().fold(0.0, f64::max);
-        let mut fixed = FixedNodes::none(model.node_count());
-        for f in &config.fixed {
-            let region = match f {
-                FixedSpec::Plane { axis, value } => {
-                    FixedNodes::plane(&model.rest, *axis, *value, tolerance)
-                }
-                FixedSpec::Box { min, max } => FixedNodes::aabb(&model.rest, *min, *max),
-            };
-            fixed = fixed.union(&region);
-        }
-        let mut nodal = vec![[0.0; 3]; model.node_count()];
-        for (k, load) in config.loads.iter().enumerate() {
-            let patch: Vec<usize> = (0..model.node_count())
-                .filter(|&n| {
-                    (0..3).map(|a| (model.rest[n][a] - load.centre[a]).powi(2)).sum::<f64>().sqrt()
-                        <= load.radius
-                })
-                .collect();
-            if patch.is_empty() {
-                return Err(build(format!(
-                    "loads[{k}]: no node lies within {} m of {:?}",
-                    load.radius, load.centre
-                )));
-            }
-            let share = 1.0 / patch.len() as f64;
-            for n in patch {
-                for a in 0..3 {
-                    nodal[n][a] += load.force[a] * share;
-                }
-            }
-        }
-        let loads = Loads { gravity: config.gravity, nodal };
+        let fixed = fixed_nodes(config, &grid, &model);
+        let loads = patch_loads(config, &model).map_err(build)?;
         let damping = Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta };
         let integrator = match config.integrator {
             IntegratorKind::ImplicitEuler => Integrator::Implicit(BackwardEuler::new(
@@ -234,6 +247,88 @@ impl Simulation {
             state_hash: fnv(&self.state),
             counters,
         }
+    }
+
+    /// Cuts the grid (voxel removal or link severing) and carries the simulation across the
+    /// topology change: surviving nodes keep position and velocity; a node split off another takes
+    /// that node's; any other new node takes its element's mean displacement and velocity.
+    /// Surviving and split-off elements keep their rotation. Fixed regions and patch loads are
+    /// re-applied to the new nodes.
+    pub fn cut(&mut self, edit: &GridEdit) -> Result<GridChanges, EditError> {
+        let changes = self.grid.apply(edit)?;
+        if changes == GridChanges::default() {
+            return Ok(changes);
+        }
+        let model = HexModel::from_grid(&self.grid);
+        let old = &self.model;
+        let mut old_index = vec![
+            u32::MAX;
+            self.grid.top().node_capacity().max(
+                old.grid_node.iter().map(|&g| g as usize + 1).max().unwrap_or(0)
+            )
+        ];
+        for (i, &g) in old.grid_node.iter().enumerate() {
+            old_index[g as usize] = i as u32;
+        }
+        let added: std::collections::BTreeMap<u32, Option<u32>> =
+            changes.top.nodes_added.iter().copied().collect();
+        let n = model.node_count();
+        let mut state = State { x: model.rest.clone(), v: vec![[0.0; 3]; n] };
+        let mut known = vec![false; n];
+        for (i, &g) in model.grid_node.iter().enumerate() {
+            let source = match added.get(&g) {
+                Some(origin) => *origin,
+                None => Some(g),
+            };
+            if let Some(j) =
+                source.and_then(|s| old_index.get(s as usize).copied()).filter(|&j| j != u32::MAX)
+            {
+                state.x[i] = self.state.x[j as usize];
+                state.v[i] = self.state.v[j as usize];
+                known[i] = true;
+            }
+        }
+        for e in &model.elements {
+            let have: Vec<usize> =
+                e.nodes.iter().map(|&k| k as usize).filter(|&k| known[k]).collect();
+            if have.is_empty() {
+                continue;
+            }
+            let mut du = [0.0; 3];
+            let mut v = [0.0; 3];
+            for &k in &have {
+                for a in 0..3 {
+                    du[a] += (state.x[k][a] - model.rest[k][a]) / have.len() as f64;
+                    v[a] += state.v[k][a] / have.len() as f64;
+                }
+            }
+            for &k in &e.nodes {
+                let k = k as usize;
+                if !known[k] {
+                    state.x[k] = std::array::from_fn(|a| model.rest[k][a] + du[a]);
+                    state.v[k] = v;
+                    known[k] = true;
+                }
+            }
+        }
+        let origin_of: std::collections::BTreeMap<u32, u32> =
+            changes.top.elements_added.iter().filter_map(|&(id, o)| o.map(|o| (id, o))).collect();
+        self.force_field = self.force_field.remapped(old, &model, |g| origin_of.get(&g).copied());
+        self.fixed = fixed_nodes(&self.config, &self.grid, &model);
+        for (i, s) in state.v.iter_mut().enumerate() {
+            if self.fixed.is_fixed(i) {
+                *s = [0.0; 3];
+            }
+        }
+        // A patch that lost all its nodes simply stops pulling.
+        self.loads = patch_loads(&self.config, &model)
+            .unwrap_or(Loads { gravity: self.config.gravity, nodal: Vec::new() });
+        if let Integrator::Implicit(be) = &mut self.integrator {
+            be.reset_warm_start();
+        }
+        self.model = model;
+        self.state = state;
+        Ok(changes)
     }
 
     /// The scene's configuration.

@@ -63,11 +63,20 @@ pub fn invert_block(m: &Mat3) -> Mat3 {
     ]
 }
 
+/// The block-Jacobi preconditioner: `z[n] = blocks[n] · r[n]`.
+pub fn block_jacobi(blocks: &[Mat3]) -> impl Fn(&[Vec3], &mut [Vec3]) + '_ {
+    move |r, z| {
+        for ((zi, ri), m) in z.iter_mut().zip(r).zip(blocks) {
+            *zi = mul_vec(m, ri);
+        }
+    }
+}
+
 /// Solves `A x = b` on the free nodes, starting from `x` (warm start), where `apply(p, out)`
-/// sets `out = A p` and `preconditioner[n]` approximates the inverse of node `n`'s diagonal block.
+/// sets `out = A p` and `precondition(r, z)` sets `z ≈ A⁻¹ r`.
 pub fn solve(
     apply: impl Fn(&[Vec3], &mut [Vec3]),
-    preconditioner: &[Mat3],
+    precondition: impl Fn(&[Vec3], &mut [Vec3]),
     fixed: &FixedNodes,
     b: &[Vec3],
     x: &mut [Vec3],
@@ -88,11 +97,10 @@ pub fn solve(
         bb.iter().zip(&ap).map(|(b, a)| [b[0] - a[0], b[1] - a[1], b[2] - a[2]]).collect();
     fixed.project(&mut r);
     let precondition = |r: &[Vec3], z: &mut Vec<Vec3>| {
-        z.clear();
-        z.extend(r.iter().zip(preconditioner).map(|(v, m)| mul_vec(m, v)));
+        precondition(r, z);
         fixed.project(z);
     };
-    let mut z = Vec::with_capacity(n);
+    let mut z = vec![[0.0; 3]; n];
     precondition(&r, &mut z);
     let mut p = z.clone();
     let mut rz = dot(&r, &z);

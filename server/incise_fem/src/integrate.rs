@@ -9,7 +9,8 @@
 //!
 //! Masses are lumped (the condensed consistent mass rows summed per node).
 
-use crate::cg::{CgReport, CgSettings, invert_block, solve};
+use crate::cg::{CgReport, CgSettings, block_jacobi, invert_block, solve};
+use crate::cholesky::SystemFactor;
 use crate::constraints::FixedNodes;
 use crate::hex_force::HexForceField;
 use crate::model::HexModel;
@@ -154,7 +155,7 @@ pub fn static_solve(
                 out.fill([0.0; 3]);
                 ffr.add_stiffness_times(model, 1.0, p, out);
             },
-            &pre,
+            block_jacobi(&pre),
             fixed,
             &r,
             &mut dx,
@@ -178,31 +179,72 @@ pub fn static_solve(
     }
 }
 
-/// Linearised backward Euler with its CG warm start.
-#[derive(Clone, Debug)]
+/// How the implicit system is solved.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinearSolver {
+    /// CG with a block-Jacobi (3×3 per node) preconditioner.
+    JacobiCg,
+    /// CG preconditioned by a sparse Cholesky factorisation of the system, refactored (with the
+    /// current rotations) when a solve needs more than `refresh_iterations` iterations.
+    CholeskyCg {
+        /// Iterations above which the factorisation is refreshed for the next step.
+        refresh_iterations: usize,
+    },
+    /// Sparse Cholesky of the current system every step (exact solve, no iteration).
+    Cholesky,
+}
+
+/// Linearised backward Euler with its solver state (CG warm start, factorisation).
 pub struct BackwardEuler {
     /// Time step (s).
     pub dt: f64,
     /// Rayleigh damping.
     pub damping: Rayleigh,
-    /// Linear-solve settings.
+    /// Linear-solve settings (CG variants).
     pub cg: CgSettings,
+    /// The linear solver.
+    pub solver: LinearSolver,
     last_dv: Vec<Vec3>,
+    factor: Option<SystemFactor>,
+    refresh: bool,
+    /// Factorisations computed so far (a counter for reports).
+    pub factorizations: usize,
 }
 
 impl BackwardEuler {
-    /// An integrator with step `dt`.
+    /// An integrator with step `dt` solving with block-Jacobi CG.
     #[must_use]
     pub fn new(dt: f64, damping: Rayleigh, cg: CgSettings) -> Self {
-        Self { dt, damping, cg, last_dv: Vec::new() }
+        Self::with_solver(dt, damping, cg, LinearSolver::JacobiCg)
     }
 
-    /// Forgets the warm start (after the node numbering changed).
+    /// An integrator with step `dt` and the given linear solver.
+    #[must_use]
+    pub fn with_solver(dt: f64, damping: Rayleigh, cg: CgSettings, solver: LinearSolver) -> Self {
+        Self {
+            dt,
+            damping,
+            cg,
+            solver,
+            last_dv: Vec::new(),
+            factor: None,
+            refresh: true,
+            factorizations: 0,
+        }
+    }
+
+    /// Forgets the warm start and the factorisation (after the topology changed).
     pub fn reset_warm_start(&mut self) {
         self.last_dv.clear();
+        self.factor = None;
+        self.refresh = true;
     }
 
     /// Advances `state` by one step.
+    ///
+    /// # Panics
+    /// With a Cholesky solver, if the system is not positive definite on the free nodes (a free
+    /// node without mass), which a model built from a grid never has.
     pub fn step(
         &mut self,
         model: &HexModel,
@@ -233,26 +275,39 @@ impl BackwardEuler {
         }
         let a = 1.0 + h * alpha;
         let b = h * beta + h * h;
-        let pre = preconditioner(model, ff, a, b);
         if self.last_dv.len() != n {
             self.last_dv = vec![[0.0; 3]; n];
         }
         let mut dv = std::mem::take(&mut self.last_dv);
         let ffr = &*ff;
-        let report = solve(
-            |p, out| {
-                for (i, o) in out.iter_mut().enumerate() {
-                    let m = a * model.lumped_mass[i];
-                    *o = [m * p[i][0], m * p[i][1], m * p[i][2]];
-                }
-                ffr.add_stiffness_times(model, b, p, out);
-            },
-            &pre,
-            fixed,
-            &rhs,
-            &mut dv,
-            self.cg,
-        );
+        let apply = |p: &[Vec3], out: &mut [Vec3]| {
+            for (i, o) in out.iter_mut().enumerate() {
+                let m = a * model.lumped_mass[i];
+                *o = [m * p[i][0], m * p[i][1], m * p[i][2]];
+            }
+            ffr.add_stiffness_times(model, b, p, out);
+        };
+        let report = match self.solver {
+            LinearSolver::JacobiCg => {
+                let pre = preconditioner(model, ffr, a, b);
+                solve(apply, block_jacobi(&pre), fixed, &rhs, &mut dv, self.cg)
+            }
+            LinearSolver::CholeskyCg { refresh_iterations } => {
+                self.ensure_factor(model, ffr, fixed, a, b);
+                let factor = self.factor.as_ref().expect("factorised above");
+                let report = solve(apply, |r, z| factor.solve(r, z), fixed, &rhs, &mut dv, self.cg);
+                self.refresh = report.iterations > refresh_iterations;
+                report
+            }
+            LinearSolver::Cholesky => {
+                self.refresh = true;
+                self.ensure_factor(model, ffr, fixed, a, b);
+                let mut rr = rhs.clone();
+                fixed.project(&mut rr);
+                self.factor.as_ref().expect("factorised above").solve(&rr, &mut dv);
+                CgReport { iterations: 1, relative_residual: 0.0, converged: true }
+            }
+        };
         for i in 0..n {
             if fixed.is_fixed(i) {
                 state.v[i] = [0.0; 3];
@@ -265,6 +320,32 @@ impl BackwardEuler {
         }
         self.last_dv = dv;
         report
+    }
+}
+
+impl BackwardEuler {
+    /// Builds the symbolic factorisation once, and refactorises when a refresh is due.
+    fn ensure_factor(
+        &mut self,
+        model: &HexModel,
+        ff: &HexForceField,
+        fixed: &FixedNodes,
+        a: f64,
+        b: f64,
+    ) {
+        if self.factor.is_none() {
+            self.factor =
+                Some(SystemFactor::new(model, fixed).expect("the system pattern is valid"));
+            self.refresh = true;
+        }
+        if self.refresh {
+            let factor = self.factor.as_mut().expect("created above");
+            factor
+                .factorize(model, ff, a, b)
+                .expect("a·M + b·K is positive definite on the free nodes");
+            self.factorizations += 1;
+            self.refresh = false;
+        }
     }
 }
 

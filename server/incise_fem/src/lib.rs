@@ -9,6 +9,7 @@
 //! are bit-identical whatever the thread count.
 
 pub mod cg;
+pub mod cholesky;
 pub mod constraints;
 pub mod hex_force;
 pub mod integrate;

@@ -143,6 +143,8 @@ pub struct SceneConfig {
     pub dt: f64,
     /// CG relative tolerance.
     pub cg_tolerance: f64,
+    /// Linear solver of the implicit integrator.
+    pub solver: incise_fem::integrate::LinearSolver,
     /// Rayleigh damping α (1/s).
     pub rayleigh_alpha: f64,
     /// Rayleigh damping β (s).
@@ -215,6 +217,8 @@ struct RawIntegrator {
     dt: Spanned<f64>,
     #[serde(default)]
     cg_tolerance: Option<Spanned<f64>>,
+    #[serde(default)]
+    solver: Option<Spanned<String>>,
     #[serde(default)]
     rayleigh_alpha: Option<Spanned<f64>>,
     #[serde(default)]
@@ -459,6 +463,19 @@ impl SceneConfig {
             }
             None => 1e-6,
         };
+        let solver = match &i.solver {
+            None => incise_fem::integrate::LinearSolver::JacobiCg,
+            Some(sv) => match sv.get_ref().as_str() {
+                "jacobi-cg" => incise_fem::integrate::LinearSolver::JacobiCg,
+                "cholesky-cg" => {
+                    incise_fem::integrate::LinearSolver::CholeskyCg { refresh_iterations: 8 }
+                }
+                "cholesky" => incise_fem::integrate::LinearSolver::Cholesky,
+                other => {
+                    return Err(c.invalid(sv.span(), "integrator.solver", format!("is \"{other}\"; expected \"jacobi-cg\", \"cholesky-cg\" or \"cholesky\"")));
+                }
+            },
+        };
         let mut fixed = Vec::new();
         for (k, f) in raw.fixed.iter().enumerate() {
             if let Some(axis) = &f.plane {
@@ -517,6 +534,7 @@ impl SceneConfig {
             integrator,
             dt,
             cg_tolerance,
+            solver,
             rayleigh_alpha: c.non_negative(
                 i.rayleigh_alpha.as_ref(),
                 "integrator.rayleigh_alpha",

@@ -40,7 +40,7 @@ pub struct Frame {
 }
 
 enum Integrator {
-    Implicit(BackwardEuler),
+    Implicit(Box<BackwardEuler>),
     Explicit { dt: f64, alpha: f64 },
     Static { tolerance: f64 },
 }
@@ -163,14 +163,17 @@ impl Simulation {
         let loads = patch_loads(config, &model).map_err(build)?;
         let damping = Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta };
         let integrator = match config.integrator {
-            IntegratorKind::ImplicitEuler => Integrator::Implicit(BackwardEuler::new(
-                config.dt,
-                damping,
-                CgSettings {
-                    tolerance: config.cg_tolerance,
-                    max_iterations: 10 * model.dof_count().max(100),
-                },
-            )),
+            IntegratorKind::ImplicitEuler => {
+                Integrator::Implicit(Box::new(BackwardEuler::with_solver(
+                    config.dt,
+                    damping,
+                    CgSettings {
+                        tolerance: config.cg_tolerance,
+                        max_iterations: 10 * model.dof_count().max(100),
+                    },
+                    config.solver,
+                )))
+            }
             IntegratorKind::Explicit => {
                 let limit = stable_dt(&model, &force_field, &fixed);
                 if config.dt > limit {

@@ -69,6 +69,27 @@ impl HexModel {
         Self { rest, lumped_mass, elements, element_size: grid.element_size(), grid_node }
     }
 
+    /// The same grid with every element's stiffness that of a full cell of its first voxel's
+    /// material ("uniform" stiffness, the baseline Nesme et al. 2006 improve on); masses stay
+    /// condensed, so gravity is the same load as on the condensed model.
+    ///
+    /// # Panics
+    /// Only on a broken grid invariant (a live element without voxels).
+    #[must_use]
+    pub fn from_grid_uniform(grid: &BranchedGrid) -> Self {
+        let mut model = Self::from_grid(grid);
+        let size = grid.element_size();
+        let materials: Vec<incise_grid::Material> = grid.materials().map(|(_, m)| *m).collect();
+        for e in &mut model.elements {
+            let voxel =
+                *grid.element_voxels(e.grid_id).iter().min().expect("live element owns voxels");
+            let m = materials
+                [usize::from(grid.fine().material(voxel).expect("owned voxel holds material"))];
+            e.stiffness = incise_grid::hex8::hex_stiffness(size, m.youngs_modulus, m.poisson_ratio);
+        }
+        model
+    }
+
     /// Number of nodes.
     #[must_use]
     pub fn node_count(&self) -> usize {

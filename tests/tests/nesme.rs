@@ -65,7 +65,7 @@ fn error(
                 let xi: Vec3 = std::array::from_fn(|a| f64::from(p[a] % per) / f64::from(per));
                 // A corner on the cell's upper face has local coordinate 1, not 0.
                 let xi: Vec3 = std::array::from_fn(|a| {
-                    if p[a] % per == 0 && p[a] / per > c[a] / per { 1.0 } else { xi[a] }
+                    if p[a].is_multiple_of(per) && p[a] / per > c[a] / per { 1.0 } else { xi[a] }
                 });
                 let mut ul = [0.0; 3];
                 for (n, &node) in e.nodes.iter().enumerate() {
@@ -111,22 +111,22 @@ fn supported(volume: &LabelVolume, z_fix: f64) -> LabelVolume {
             }
         };
         if x > 0 {
-            visit(i - 1)
+            visit(i - 1);
         }
         if x + 1 < nx {
-            visit(i + 1)
+            visit(i + 1);
         }
         if y > 0 {
-            visit(i - nx)
+            visit(i - nx);
         }
         if y + 1 < ny {
-            visit(i + nx)
+            visit(i + nx);
         }
         if z > 0 {
-            visit(i - nx * ny)
+            visit(i - nx * ny);
         }
         if z + 1 < nz {
-            visit(i + nx * ny)
+            visit(i + nx * ny);
         }
     }
     let kept: Vec<u16> = labels.iter().zip(&keep).map(|(&l, &k)| if k { l } else { 0 }).collect();

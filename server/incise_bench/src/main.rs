@@ -2,7 +2,9 @@
 //! with `--json`, ends with one line holding one JSON object for scripts.
 
 mod grid_report;
+mod plot;
 mod progress;
+mod speed_error;
 mod stroke;
 mod timing;
 
@@ -21,11 +23,15 @@ enum Command {
     /// Dynamic Branched Grid report: per-level element and node counts, build time, direct vs
     /// recursive condensation, and a 500-voxel cut stroke updated incrementally vs rebuilt.
     Grid(grid_report::GridArgs),
+    /// Speed against error on scenes B (hanging block), C (cantilever) and the liver, for each
+    /// model, integrator and dt in {1 ms, 10 ms}; table, CSV, JSON and a log-log PNG.
+    SpeedError(speed_error::SpeedErrorArgs),
 }
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Grid(args) => grid_report::run(&args),
+        Command::SpeedError(args) => speed_error::run(&args),
     }
 }

@@ -108,3 +108,44 @@ fn bad_input_gets_a_clear_error() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--levels 9"));
 }
+
+#[test]
+fn speed_error_report_writes_table_csv_png_and_json() {
+    let dir = std::env::temp_dir().join(format!("incise-se-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (csv, png) = (dir.join("out.csv"), dir.join("out.png"));
+    let out = bench()
+        .args([
+            "speed-error",
+            "--scene",
+            "c",
+            "--max-elements",
+            "100",
+            "--steps",
+            "2",
+            "--repeats",
+            "1",
+        ])
+        .args(["--stable-seconds", "0.02", "--max-error", "0.5", "--json", "--csv"])
+        .arg(&csv)
+        .arg("--png")
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    let rows = j["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2 * 2 * 2 * 2, "2 meshes x 2 models x 2 integrators x 2 dt");
+    for row in rows {
+        for key in ["scene", "model", "dt", "steps_per_s", "error", "stable", "elements", "dofs"] {
+            assert!(row.get(key).is_some(), "row lacks {key}: {row}");
+        }
+    }
+    assert!(rows.iter().any(|r| r["stable"] == true && r["steps_per_s"].as_f64().unwrap() > 0.0));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("fastest stable configuration within 50.0 %"), "{stdout}");
+    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 1 + rows.len());
+    let png_bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&png_bytes[..8], b"\x89PNG\r\n\x1a\n", "a PNG file");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,0 +1,91 @@
+//! The speed-vs-error plot (log-log, one series per model) drawn with `plotters` into a PNG, with
+//! the peers' published speeds (BENCHMARKS.md, first run) as labelled markers.
+
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+use std::path::Path;
+
+/// Where Debian's `fonts-dejavu-core` puts the font the labels use.
+const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+
+/// Peers' steps/s at dt = 1 ms on B1–B3 (BENCHMARKS.md, first run); their error is not published.
+const PEERS: [(&str, [f64; 3]); 3] = [
+    ("MuJoCo implicit", [738.0, 171.0, 22.2]),
+    ("MuJoCo explicit", [3_128.0, 916.0, 126.0]),
+    ("Newton semi-implicit", [5_116.0, 2_274.0, 455.0]),
+];
+
+fn load_font() -> anyhow::Result<()> {
+    let bytes = std::fs::read(FONT)
+        .map_err(|e| anyhow::anyhow!("{FONT}: {e} (install Debian's fonts-dejavu-core)"))?;
+    register_font("sans-serif", FontStyle::Normal, Box::leak(bytes.into_boxed_slice()))
+        .map_err(|_| anyhow::anyhow!("{FONT} is not a usable TrueType font"))?;
+    Ok(())
+}
+
+/// Draws `(model, scene, steps/s, error, stable)` points to `path`.
+pub fn speed_error_png(
+    path: &Path,
+    points: &[(&str, &str, f64, Option<f64>, bool)],
+) -> anyhow::Result<()> {
+    load_font()?;
+    let usable: Vec<(&str, f64, f64)> = points
+        .iter()
+        .filter_map(|&(m, _, s, e, ok)| {
+            (ok && s > 0.0).then_some(e.filter(|&e| e > 0.0).map(|e| (m, s, e)))?
+        })
+        .collect();
+    let (mut x_lo, mut x_hi) = (1.0f64, 1e4f64);
+    let (mut y_lo, mut y_hi) = (1e-3f64, 1.0f64);
+    for &(_, s, e) in &usable {
+        x_lo = x_lo.min(s / 2.0);
+        x_hi = x_hi.max(s * 2.0);
+        y_lo = y_lo.min(e / 2.0);
+        y_hi = y_hi.max(e * 2.0);
+    }
+    let root = BitMapBackend::new(path, (1000, 700)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("incise: speed against error (stable configurations)", ("sans-serif", 24))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d((x_lo..x_hi).log_scale(), (y_lo..y_hi).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("steps per second")
+        .y_desc("relative error")
+        .label_style(("sans-serif", 14))
+        .draw()?;
+    for (i, model) in ["corotational-hex", "linear-hex"].iter().enumerate() {
+        let color = Palette99::pick(i).to_rgba();
+        let series: Vec<(f64, f64)> =
+            usable.iter().filter(|p| p.0 == *model).map(|p| (p.1, p.2)).collect();
+        chart
+            .draw_series(series.iter().map(|&(x, y)| Circle::new((x, y), 5, color.filled())))?
+            .label(*model)
+            .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
+    }
+    for (k, (name, rates)) in PEERS.iter().enumerate() {
+        let color = Palette99::pick(k + 4).to_rgba();
+        for (b, &rate) in rates.iter().enumerate() {
+            if rate > x_lo && rate < x_hi {
+                // Their error is not published: they sit in a band at the top, at their speed only.
+                let top = y_hi / 1.4f64.powi(b as i32 + 1);
+                chart.draw_series(std::iter::once(TriangleMarker::new(
+                    (rate, top),
+                    7,
+                    color.filled(),
+                )))?;
+                chart.draw_series(std::iter::once(Text::new(
+                    format!("{name} B{} (speed only)", b + 1),
+                    (rate, top),
+                    ("sans-serif", 11),
+                )))?;
+            }
+        }
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}

@@ -1,0 +1,477 @@
+//! `incise-bench speed-error`: speed against error on BENCHMARKS.md scenes B (hanging block) and
+//! C (cantilever) and on the liver, for each model, integrator and dt ∈ {1 ms, 10 ms}.
+//!
+//! Error is measured, not assumed: a row's error is the static answer of its own mesh and model
+//! (which its dynamics settle on, tested in `incise_fem`) against the reference — Euler–Bernoulli
+//! for C, a static corotational solve on a mesh twice as fine as B3 for B — and a row is stable
+//! when a run of `--stable-seconds` simulated seconds stays finite and bounded. Speed is steps per
+//! second of the integrator alone, median/min/max over `--repeats` runs.
+
+use crate::timing::measure;
+use anyhow::{Context, bail};
+use incise_fem::cg::CgSettings;
+use incise_fem::integrate::{
+    BackwardEuler, LinearSolver, Loads, Rayleigh, State, explicit_step, stable_dt, static_solve,
+};
+use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
+use incise_grid::procedural::from_fn;
+use incise_grid::{BranchedGrid, Material, MaterialTable};
+use incise_math::Vec3;
+use serde::Serialize;
+use std::io::Write;
+use std::path::PathBuf;
+
+/// Arguments of `incise-bench speed-error`.
+#[derive(clap::Args, Debug)]
+pub struct SpeedErrorArgs {
+    /// Scenes to run: `all`, or a comma-separated list of `b1`, `b2`, `b3`, `c`, `liver`.
+    #[arg(long, default_value = "all")]
+    scene: String,
+    /// Skip meshes with more elements than this (quick runs).
+    #[arg(long)]
+    max_elements: Option<usize>,
+    /// Timed steps per run.
+    #[arg(long, default_value_t = 50)]
+    steps: usize,
+    /// Timed runs per row (median, min and max are reported).
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
+    /// Simulated seconds of the stability check.
+    #[arg(long, default_value_t = 0.3)]
+    stable_seconds: f64,
+    /// Also print the fastest stable configuration whose error is at most this (e.g. 0.05).
+    #[arg(long)]
+    max_error: Option<f64>,
+    /// End with one line holding one JSON object `{"rows":[…]}`.
+    #[arg(long)]
+    json: bool,
+    /// Write the rows as CSV to this file.
+    #[arg(long, value_name = "PATH")]
+    csv: Option<PathBuf>,
+    /// Draw speed against error (log-log) to this PNG.
+    #[arg(long, value_name = "PATH")]
+    png: Option<PathBuf>,
+}
+
+/// One configuration's figures.
+#[derive(Clone, Debug, Serialize)]
+struct Row {
+    scene: String,
+    model: &'static str,
+    integrator: &'static str,
+    solver: &'static str,
+    resolution: String,
+    level: u32,
+    elements: usize,
+    dofs: usize,
+    dt: f64,
+    steps_per_s: f64,
+    steps_per_s_min: f64,
+    steps_per_s_max: f64,
+    error: Option<f64>,
+    stable: bool,
+}
+
+/// A scene to measure: its model, supports, loads, the quantity compared and its reference.
+struct Case {
+    scene: String,
+    resolution: String,
+    level: u32,
+    model: HexModel,
+    fixed: FixedNodes,
+    loads: Loads,
+    /// Nodes whose mean displacement along `axis` (or norm, when `None`) is the compared quantity.
+    probe: Vec<usize>,
+    axis: Option<usize>,
+    reference: Option<f64>,
+    /// The implicit solver this scene runs with (picked per scene, as a user would).
+    solver: LinearSolver,
+}
+
+const BLOCK: Vec3 = [0.15, 0.10, 0.08];
+
+fn block_case(name: &str, cells: [usize; 3]) -> Case {
+    let spacing = std::array::from_fn(|a| BLOCK[a] / cells[a] as f64);
+    let v = from_fn(cells, spacing, |_, _, _| 1);
+    let grid =
+        BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0)), 0)
+            .expect("block grid");
+    let model = HexModel::from_grid(&grid);
+    let fixed = FixedNodes::plane(&model.rest, 2, BLOCK[2], 1e-9);
+    let corner = [BLOCK[0], BLOCK[1], 0.0];
+    let dist =
+        |n: usize| (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt();
+    let patch: Vec<usize> = (0..model.node_count()).filter(|&n| dist(n) <= 0.022).collect();
+    let share = 0.5 / 3f64.sqrt() / patch.len() as f64;
+    let mut nodal = vec![[0.0; 3]; model.node_count()];
+    for &n in &patch {
+        nodal[n] = [share, share, -share];
+    }
+    let probe =
+        vec![(0..model.node_count()).min_by(|&a, &b| dist(a).total_cmp(&dist(b))).expect("nodes")];
+    Case {
+        scene: name.into(),
+        resolution: format!("{}x{}x{}", cells[0], cells[1], cells[2]),
+        level: 0,
+        model,
+        fixed,
+        loads: Loads { gravity: [0.0, 0.0, -9.81], nodal },
+        probe,
+        axis: None,
+        reference: None,
+        // A bulky 3-D mesh fills a Cholesky factor badly: on B3 block-Jacobi CG is faster.
+        solver: if cells.iter().product::<usize>() > 2_000 {
+            LinearSolver::JacobiCg
+        } else {
+            LinearSolver::CholeskyCg { refresh_iterations: 8 }
+        },
+    }
+}
+
+fn cantilever_case(n: usize) -> Case {
+    let (l, w) = (0.1, 0.01);
+    let v = from_fn(
+        [n, n / 10, n / 10],
+        [l / n as f64, w / (n / 10) as f64, w / (n / 10) as f64],
+        |_, _, _| 1,
+    );
+    let grid =
+        BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(1e6, 0.3, 1000.0)), 0)
+            .expect("beam grid");
+    let model = HexModel::from_grid(&grid);
+    let fixed = FixedNodes::plane(&model.rest, 0, 0.0, 1e-12);
+    let probe = (0..model.node_count()).filter(|&k| (model.rest[k][0] - l).abs() < 1e-12).collect();
+    let eb = 1000.0 * 9.81 * w * w * l.powi(4) / (8.0 * 1e6 * w * w.powi(3) / 12.0);
+    Case {
+        scene: "C".into(),
+        resolution: format!("{n}x{}x{}", n / 10, n / 10),
+        level: 0,
+        model,
+        fixed,
+        loads: Loads::gravity([0.0, 0.0, -9.81]),
+        probe,
+        axis: Some(2),
+        reference: Some(eb),
+        // A slender beam is ill-conditioned for Jacobi but factorises with little fill.
+        solver: LinearSolver::CholeskyCg { refresh_iterations: 8 },
+    }
+}
+
+fn liver_case(name: &str, stride: [usize; 3]) -> anyhow::Result<Case> {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/data/liver.inr.gz");
+    let raw = incise_io::read_volume(std::path::Path::new(path))?;
+    let v = raw.filtered(&incise_grid::LabelFilter::abdominal_ct()).crop_and_stride(stride)?;
+    let grid = BranchedGrid::build(&v, &MaterialTable::abdominal_ct(), 3)?;
+    let model = HexModel::from_grid(&grid);
+    let top = model.rest.iter().map(|p| p[2]).fold(0.0, f64::max);
+    let fixed = FixedNodes::by_position(&model.rest, |p| p[2] >= top - 1e-9);
+    Ok(Case {
+        scene: name.into(),
+        resolution: format!("stride {},{},{}", stride[0], stride[1], stride[2]),
+        level: 3,
+        model,
+        fixed,
+        loads: Loads::gravity([0.0, 0.0, -9.81]),
+        probe: Vec::new(),
+        axis: None,
+        reference: None,
+        solver: LinearSolver::CholeskyCg { refresh_iterations: 8 },
+    })
+}
+
+/// The compared quantity of `case` at positions `x`.
+fn measured(case: &Case, x: &[Vec3]) -> f64 {
+    let d = |n: usize| -> f64 {
+        let u: Vec3 = std::array::from_fn(|a| x[n][a] - case.model.rest[n][a]);
+        match case.axis {
+            Some(a) => -u[a],
+            None => (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt(),
+        }
+    };
+    case.probe.iter().map(|&n| d(n)).sum::<f64>() / case.probe.len().max(1) as f64
+}
+
+fn static_answer(case: &Case, formulation: Formulation) -> f64 {
+    let mut ff = HexForceField::new(&case.model, formulation);
+    let mut x = case.model.rest.clone();
+    static_solve(&case.model, &mut ff, &case.fixed, &case.loads, &mut x, 1e-9, 50);
+    measured(case, &x)
+}
+
+#[derive(Clone, Copy)]
+enum Scheme {
+    Implicit(LinearSolver),
+    Explicit,
+}
+
+fn scheme_names(s: Scheme) -> (&'static str, &'static str) {
+    match s {
+        Scheme::Implicit(LinearSolver::JacobiCg) => ("implicit-euler", "jacobi-cg"),
+        Scheme::Implicit(LinearSolver::CholeskyCg { .. }) => ("implicit-euler", "cholesky-cg"),
+        Scheme::Implicit(LinearSolver::Cholesky) => ("implicit-euler", "cholesky"),
+        Scheme::Explicit => ("explicit", "-"),
+    }
+}
+
+/// A stepping closure for `case` with `scheme` at `dt`, and the state it advances.
+fn stepper(
+    case: &Case,
+    formulation: Formulation,
+    scheme: Scheme,
+    dt: f64,
+) -> impl FnMut(&mut State) + '_ {
+    let mut ff = HexForceField::new(&case.model, formulation);
+    let damping = Rayleigh { alpha: 2.0, beta: 0.01 };
+    let mut be = match scheme {
+        Scheme::Implicit(solver) => Some(BackwardEuler::with_solver(
+            dt,
+            damping,
+            CgSettings { tolerance: 1e-6, max_iterations: 2000 },
+            solver,
+        )),
+        Scheme::Explicit => None,
+    };
+    move |state: &mut State| match &mut be {
+        Some(be) => {
+            be.step(&case.model, &mut ff, &case.fixed, &case.loads, state);
+        }
+        None => {
+            explicit_step(&case.model, &mut ff, &case.fixed, &case.loads, damping.alpha, dt, state);
+        }
+    }
+}
+
+fn stable(case: &Case, formulation: Formulation, scheme: Scheme, dt: f64, seconds: f64) -> bool {
+    let mut step = stepper(case, formulation, scheme, dt);
+    let mut state = State::at_rest(&case.model);
+    let size = case.model.rest.iter().flat_map(|p| p.iter()).fold(0.0f64, |m, &c| m.max(c.abs()));
+    for _ in 0..(seconds / dt).ceil() as usize {
+        step(&mut state);
+        let bad = state
+            .x
+            .iter()
+            .zip(&case.model.rest)
+            .any(|(p, q)| (0..3).any(|a| !p[a].is_finite() || (p[a] - q[a]).abs() > size));
+        if bad {
+            return false;
+        }
+    }
+    true
+}
+
+/// Runs the report.
+pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
+    let wanted: Vec<String> = if args.scene == "all" {
+        ["b1", "b2", "b3", "c", "liver"].map(String::from).to_vec()
+    } else {
+        args.scene.split(',').map(|s| s.trim().to_lowercase()).collect()
+    };
+    let mut cases: Vec<Case> = Vec::new();
+    for w in &wanted {
+        match w.as_str() {
+            "b1" => cases.push(block_case("B1", [7, 5, 4])),
+            "b2" => cases.push(block_case("B2", [11, 8, 6])),
+            "b3" => cases.push(block_case("B3", [22, 15, 12])),
+            "c" => cases.extend([10, 20, 40, 80].map(cantilever_case)),
+            "liver" => {
+                cases.push(liver_case("liver-13k", [8, 8, 4])?);
+                cases.push(liver_case("liver-109k", [4, 4, 2])?);
+            }
+            other => bail!("unknown scene '{other}': expected all, b1, b2, b3, c or liver"),
+        }
+    }
+    if let Some(limit) = args.max_elements {
+        cases.retain(|c| c.model.elements.len() <= limit);
+    }
+    if cases.is_empty() {
+        bail!("no scene left to run (check --scene and --max-elements)");
+    }
+    if cases.iter().any(|c| c.scene.starts_with('B')) {
+        eprintln!(
+            "reference for scene B: static corotational solve on 33x22x18 hexahedra (1.5x B3) …"
+        );
+        let fine = block_case("B-ref", [33, 22, 18]);
+        let reference = static_answer(&fine, Formulation::Corotational);
+        eprintln!("  pulled-corner displacement {:.4} mm", reference * 1e3);
+        for c in cases.iter_mut().filter(|c| c.scene.starts_with('B')) {
+            c.reference = Some(reference);
+        }
+    }
+    let bar = crate::progress::stages(cases.len() as u64);
+    let mut rows = Vec::new();
+    for case in &cases {
+        bar.set_message(format!("{} {}", case.scene, case.resolution));
+        let explicit_limit = stable_dt(
+            &case.model,
+            &HexForceField::new(&case.model, Formulation::Linear),
+            &case.fixed,
+        );
+        for formulation in [Formulation::Corotational, Formulation::Linear] {
+            let error = case.reference.map(|r| (static_answer(case, formulation) - r).abs() / r);
+            for scheme in [Scheme::Implicit(case.solver), Scheme::Explicit] {
+                for dt in [1e-3, 1e-2] {
+                    let ok = match scheme {
+                        Scheme::Explicit if dt > explicit_limit => false,
+                        _ => stable(case, formulation, scheme, dt, args.stable_seconds),
+                    };
+                    let (timing, ()) = if ok {
+                        let mut step = stepper(case, formulation, scheme, dt);
+                        let mut state = State::at_rest(&case.model);
+                        measure(
+                            args.repeats,
+                            || (),
+                            |()| {
+                                for _ in 0..args.steps {
+                                    step(&mut state);
+                                }
+                            },
+                        )
+                    } else {
+                        (
+                            crate::timing::Timing {
+                                median_ms: f64::INFINITY,
+                                min_ms: f64::INFINITY,
+                                max_ms: f64::INFINITY,
+                                repeats: 0,
+                            },
+                            (),
+                        )
+                    };
+                    let rate = |ms: f64| {
+                        if ms.is_finite() { args.steps as f64 / (ms * 1e-3) } else { 0.0 }
+                    };
+                    let (integrator, solver) = scheme_names(scheme);
+                    rows.push(Row {
+                        scene: case.scene.clone(),
+                        model: if formulation == Formulation::Linear {
+                            "linear-hex"
+                        } else {
+                            "corotational-hex"
+                        },
+                        integrator,
+                        solver,
+                        resolution: case.resolution.clone(),
+                        level: case.level,
+                        elements: case.model.elements.len(),
+                        dofs: case.model.dof_count(),
+                        dt,
+                        steps_per_s: rate(timing.median_ms),
+                        steps_per_s_min: rate(timing.max_ms),
+                        steps_per_s_max: rate(timing.min_ms),
+                        error,
+                        stable: ok,
+                    });
+                }
+            }
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    print_table(&rows);
+    if let Some(limit) = args.max_error {
+        match rows
+            .iter()
+            .filter(|r| r.stable && r.error.is_some_and(|e| e <= limit))
+            .max_by(|a, b| a.steps_per_s.total_cmp(&b.steps_per_s))
+        {
+            Some(r) => println!(
+                "fastest stable configuration within {:.1} % error: {} {} {} {} {} dt = {} s: {:.0} steps/s, error {:.2} %",
+                limit * 100.0,
+                r.scene,
+                r.resolution,
+                r.model,
+                r.integrator,
+                r.solver,
+                r.dt,
+                r.steps_per_s,
+                r.error.unwrap_or(f64::NAN) * 100.0
+            ),
+            None => println!("no stable configuration is within {:.1} % error", limit * 100.0),
+        }
+    }
+    if let Some(path) = &args.csv {
+        write_csv(path, &rows).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = &args.png {
+        crate::plot::speed_error_png(
+            path,
+            &rows
+                .iter()
+                .map(|r| (r.model, r.scene.as_str(), r.steps_per_s, r.error, r.stable))
+                .collect::<Vec<_>>(),
+        )
+        .with_context(|| format!("drawing {}", path.display()))?;
+    }
+    if args.json {
+        println!("{}", serde_json::json!({ "rows": rows }));
+    }
+    Ok(())
+}
+
+fn print_table(rows: &[Row]) {
+    println!(
+        "{:<11} {:<17} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>6} {:>10} {:>10} {:>10} {:>9} {:>6}",
+        "scene",
+        "model",
+        "integrator",
+        "solver",
+        "resolution",
+        "level",
+        "elements",
+        "dofs",
+        "dt",
+        "steps/s",
+        "min",
+        "max",
+        "error",
+        "stable"
+    );
+    for r in rows {
+        println!(
+            "{:<11} {:<17} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>6} {:>10.1} {:>10.1} {:>10.1} {:>9} {:>6}",
+            r.scene,
+            r.model,
+            r.integrator,
+            r.solver,
+            r.resolution,
+            r.level,
+            r.elements,
+            r.dofs,
+            r.dt,
+            r.steps_per_s,
+            r.steps_per_s_min,
+            r.steps_per_s_max,
+            r.error.map_or("-".to_string(), |e| format!("{:.2} %", e * 100.0)),
+            if r.stable { "yes" } else { "no" }
+        );
+    }
+}
+
+fn write_csv(path: &std::path::Path, rows: &[Row]) -> std::io::Result<()> {
+    let mut f = std::fs::File::create(path)?;
+    writeln!(
+        f,
+        "scene,model,integrator,solver,resolution,level,elements,dofs,dt,steps_per_s,steps_per_s_min,steps_per_s_max,error,stable"
+    )?;
+    for r in rows {
+        writeln!(
+            f,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            r.scene,
+            r.model,
+            r.integrator,
+            r.solver,
+            r.resolution,
+            r.level,
+            r.elements,
+            r.dofs,
+            r.dt,
+            r.steps_per_s,
+            r.steps_per_s_min,
+            r.steps_per_s_max,
+            r.error.map_or(String::new(), |e| e.to_string()),
+            r.stable
+        )?;
+    }
+    Ok(())
+}

@@ -125,6 +125,31 @@ pub fn static_solve(
     tolerance: f64,
     max_newton: usize,
 ) -> StaticReport {
+    static_solve_with(model, ff, fixed, loads, x, tolerance, max_newton, false)
+}
+
+/// [`static_solve`] with, when `cholesky` is set, each Newton step's CG preconditioned by a
+/// sparse Cholesky factorisation of the current stiffness (a few iterations instead of thousands
+/// on large bulky meshes; the factorisation costs memory and time up front).
+///
+/// # Panics
+/// With `cholesky`, if the stiffness is singular on the free nodes (an unsupported fragment).
+#[allow(clippy::too_many_arguments)] // the static problem is these seven things; a struct adds nothing
+pub fn static_solve_with(
+    model: &HexModel,
+    ff: &mut HexForceField,
+    fixed: &FixedNodes,
+    loads: &Loads,
+    x: &mut [Vec3],
+    tolerance: f64,
+    max_newton: usize,
+    cholesky: bool,
+) -> StaticReport {
+    let mut factor = if cholesky {
+        Some(SystemFactor::new(model, fixed).expect("the stiffness pattern is valid"))
+    } else {
+        None
+    };
     let n = model.node_count();
     let mut f_ext = vec![[0.0; 3]; n];
     loads.add_to(model, &mut f_ext);
@@ -147,23 +172,25 @@ pub fn static_solve(
                 converged: true,
             };
         }
-        let pre = preconditioner(model, ff, 0.0, 1.0);
         dx.fill([0.0; 3]);
         let ffr = &*ff;
-        let report = solve(
-            |p, out| {
-                out.fill([0.0; 3]);
-                ffr.add_stiffness_times(model, 1.0, p, out);
-            },
-            block_jacobi(&pre),
-            fixed,
-            &r,
-            &mut dx,
-            CgSettings {
-                tolerance: (0.1 * tolerance).max(1e-14),
-                max_iterations: 20 * model.dof_count(),
-            },
-        );
+        let apply = |p: &[Vec3], out: &mut [Vec3]| {
+            out.fill([0.0; 3]);
+            ffr.add_stiffness_times(model, 1.0, p, out);
+        };
+        let settings = CgSettings {
+            tolerance: (0.1 * tolerance).max(1e-14),
+            max_iterations: 20 * model.dof_count(),
+        };
+        let report = if let Some(f) = factor.as_mut() {
+            f.factorize(model, ffr, 0.0, 1.0)
+                .expect("the stiffness is positive definite on the free nodes");
+            let f = &*f;
+            solve(apply, |r, z| f.solve(r, z), fixed, &r, &mut dx, settings)
+        } else {
+            let pre = preconditioner(model, ffr, 0.0, 1.0);
+            solve(apply, block_jacobi(&pre), fixed, &r, &mut dx, settings)
+        };
         cg_total += report.iterations;
         for (xi, d) in x.iter_mut().zip(&dx) {
             for k in 0..3 {

@@ -180,6 +180,55 @@ impl LabelVolume {
         Ok(out)
     }
 
+    /// Only the largest face-connected piece of foreground (striding a segmentation can leave
+    /// isolated voxels behind, which would float free in a simulation). Ties go to the piece with
+    /// the smallest voxel index.
+    #[must_use]
+    pub fn largest_component(&self) -> Self {
+        let [nx, ny, nz] = self.dims;
+        let n = self.labels.len();
+        let mut component = vec![u32::MAX; n];
+        let mut sizes: Vec<usize> = Vec::new();
+        let mut stack = Vec::new();
+        for start in 0..n {
+            if self.labels[start] == 0 || component[start] != u32::MAX {
+                continue;
+            }
+            let id = sizes.len() as u32;
+            component[start] = id;
+            stack.push(start);
+            let mut size = 0;
+            while let Some(i) = stack.pop() {
+                size += 1;
+                let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
+                let neighbours = [
+                    (x > 0).then(|| i - 1),
+                    (x + 1 < nx).then(|| i + 1),
+                    (y > 0).then(|| i - nx),
+                    (y + 1 < ny).then(|| i + nx),
+                    (z > 0).then(|| i - nx * ny),
+                    (z + 1 < nz).then(|| i + nx * ny),
+                ];
+                for j in neighbours.into_iter().flatten() {
+                    if self.labels[j] != 0 && component[j] == u32::MAX {
+                        component[j] = id;
+                        stack.push(j);
+                    }
+                }
+            }
+            sizes.push(size);
+        }
+        let mut out = self.clone();
+        if let Some(best) = (0..sizes.len()).max_by_key(|&k| (sizes[k], std::cmp::Reverse(k))) {
+            for (l, &c) in out.labels.iter_mut().zip(&component) {
+                if c != best as u32 {
+                    *l = 0;
+                }
+            }
+        }
+        out
+    }
+
     /// Rewrites labels through `filter` (dropping, keeping or merging labels).
     #[must_use]
     pub fn filtered(&self, filter: &crate::material::LabelFilter) -> Self {
@@ -233,6 +282,20 @@ mod tests {
         let v = tiny().crop_and_stride([2, 1, 1]).unwrap();
         assert_eq!(v.dims(), [1, 2, 1]);
         assert_eq!(v.spacing(), [2e-3, 2e-3, 3e-3]);
+    }
+
+    #[test]
+    fn largest_component_drops_stray_voxels() {
+        let mut labels = vec![1u16; 27];
+        labels[0] = 0;
+        labels[1] = 0;
+        labels[3] = 0;
+        labels[9] = 0; // voxel 0's neighbours are empty...
+        labels[0] = 2; // ...so a label-2 voxel at 0 is a piece of its own
+        let v = LabelVolume::new([3, 3, 3], [1.0; 3], labels).unwrap();
+        let kept = v.largest_component();
+        assert_eq!(kept.label(0, 0, 0), 0);
+        assert_eq!(kept.foreground_count(), v.foreground_count() - 1);
     }
 
     #[test]

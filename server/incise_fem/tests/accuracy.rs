@@ -119,6 +119,15 @@ fn perturbed(model: &HexModel, amp: f64, seed: u64) -> Vec<Vec3> {
         .collect()
 }
 
+/// ‖K d − (−(f(x + hd) − f(x − hd)) / 2h)‖: the stiffness against central differences of forces.
+fn stiffness_mismatch(kd: &[Vec3], f_plus: &[Vec3], f_minus: &[Vec3], h: f64) -> f64 {
+    kd.iter()
+        .zip(f_plus.iter().zip(f_minus))
+        .map(|(k, (p, m))| (0..3).map(|a| (k[a] + (p[a] - m[a]) / (2.0 * h)).powi(2)).sum::<f64>())
+        .sum::<f64>()
+        .sqrt()
+}
+
 fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1] + x[2] * y[2]).sum()
 }
@@ -153,19 +162,7 @@ fn linear_forces_and_stiffness_match_finite_differences_of_the_energy() {
     let (mut fp, mut fm) = (vec![[0.0; 3]; model.node_count()], vec![[0.0; 3]; model.node_count()]);
     ff.add_forces(&model, &shift(h), &mut fp);
     ff.add_forces(&model, &shift(-h), &mut fm);
-    let fd_k: Vec<Vec3> = fp
-        .iter()
-        .zip(&fm)
-        .map(|(a, b)| {
-            [-(a[0] - b[0]) / (2.0 * h), -(a[1] - b[1]) / (2.0 * h), -(a[2] - b[2]) / (2.0 * h)]
-        })
-        .collect();
-    let err: f64 = kd
-        .iter()
-        .zip(&fd_k)
-        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>())
-        .sum::<f64>()
-        .sqrt();
+    let err = stiffness_mismatch(&kd, &fp, &fm, h);
     assert!(err <= 1e-6 * dot(&kd, &kd).sqrt(), "K d differs from the force difference by {err:e}");
 }
 
@@ -200,19 +197,7 @@ fn corotational_forces_match_the_energy_at_small_strain_and_the_stiffness_at_rot
     };
     let (fp, fm) =
         (force_at(&mut ff, &shift(&rotated, h)), force_at(&mut ff, &shift(&rotated, -h)));
-    let fd_k: Vec<Vec3> = fp
-        .iter()
-        .zip(&fm)
-        .map(|(a, b)| {
-            [-(a[0] - b[0]) / (2.0 * h), -(a[1] - b[1]) / (2.0 * h), -(a[2] - b[2]) / (2.0 * h)]
-        })
-        .collect();
-    let err: f64 = kd
-        .iter()
-        .zip(&fd_k)
-        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>())
-        .sum::<f64>()
-        .sqrt();
+    let err = stiffness_mismatch(&kd, &fp, &fm, h);
     // Truncation O(h²·|K|·|d|) and rotation round-off: 1e-5 relative.
     assert!(
         err <= 1e-5 * dot(&kd, &kd).sqrt(),

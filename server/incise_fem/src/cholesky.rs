@@ -10,7 +10,7 @@ use crate::hex_force::HexForceField;
 use crate::model::HexModel;
 use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
-use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
 use faer::{MatMut, Side};
 use incise_math::Vec3;
 use incise_math::mat3::{mul, transpose};
@@ -162,8 +162,9 @@ impl SystemFactor {
                 }
             }
         }
-        let matrix = SparseColMat::new(self.symbolic_matrix.clone(), self.values.clone());
-        let llt = Llt::try_new_with_symbolic(self.symbolic.clone(), matrix.as_ref(), Side::Lower)
+        // A view over the stored pattern and values: nothing is copied per refresh.
+        let matrix = SparseColMatRef::new(self.symbolic_matrix.as_ref(), &self.values);
+        let llt = Llt::try_new_with_symbolic(self.symbolic.clone(), matrix, Side::Lower)
             .map_err(|e| FactorError(format!("{e:?}")))?;
         self.factor = Some(llt);
         Ok(())

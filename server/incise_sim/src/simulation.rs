@@ -264,12 +264,9 @@ impl Simulation {
         }
         let model = HexModel::from_grid(&self.grid);
         let old = &self.model;
-        let mut old_index = vec![
-            u32::MAX;
-            self.grid.top().node_capacity().max(
-                old.grid_node.iter().map(|&g| g as usize + 1).max().unwrap_or(0)
-            )
-        ];
+        // Grid node id → index in the old model (ids beyond the old ones are new nodes).
+        let mut old_index =
+            vec![u32::MAX; old.grid_node.iter().map(|&g| g as usize + 1).max().unwrap_or(0)];
         for (i, &g) in old.grid_node.iter().enumerate() {
             old_index[g as usize] = i as u32;
         }

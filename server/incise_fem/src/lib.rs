@@ -13,6 +13,7 @@ pub mod cholesky;
 pub mod constraints;
 pub mod hex_force;
 pub mod integrate;
+mod kernel;
 pub mod model;
 mod parallel;
 

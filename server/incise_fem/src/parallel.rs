@@ -4,6 +4,7 @@
 /// Below this many elements a second thread costs more than it saves.
 const PARALLEL_MIN: usize = 512;
 
+use std::sync::OnceLock;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// 0 = automatic; otherwise the thread count every element loop uses.
@@ -17,30 +18,65 @@ pub fn set_thread_override(threads: Option<usize>) {
 
 /// Threads to use: the override, else `INCISE_THREADS`, else up to 2.
 fn threads() -> usize {
+    // Read once: `available_parallelism` opens cgroup files on every call (a third of a small
+    // scene's step time when it was asked per element loop).
+    static AUTOMATIC: OnceLock<usize> = OnceLock::new();
     match OVERRIDE.load(Ordering::Relaxed) {
-        0 => std::env::var("INCISE_THREADS")
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get().min(2)))
-            .max(1),
+        0 => *AUTOMATIC.get_or_init(|| {
+            std::env::var("INCISE_THREADS")
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or_else(|| {
+                    std::thread::available_parallelism().map_or(1, |n| n.get().min(2))
+                })
+                .max(1)
+        }),
         n => n,
     }
 }
 
-/// `(0..n).map(f)` computed on up to [`threads`] threads, results in index order.
-pub(crate) fn map_elements<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+/// The worker threads, started once: spawning threads per element loop cost more than a small
+/// scene's whole loop (stack mappings and TLB shootdowns).
+fn pool() -> &'static rayon::ThreadPool {
+    static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
+    POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads())
+            .thread_name(|i| format!("incise-fem-{i}"))
+            .build()
+            .expect("the element-loop threads start")
+    })
+}
+
+/// `out[i] = f(i)` for every index, on up to [`threads`] threads (contiguous chunks, one per
+/// thread).
+pub(crate) fn fill_elements<T: Send>(out: &mut [T], f: impl Fn(usize) -> T + Sync) {
+    let run = |start: usize, out: &mut [T]| {
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = f(start + k);
+        }
+    };
+    let n = out.len();
     let t = threads();
     if t == 1 || n < PARALLEL_MIN {
-        return (0..n).map(f).collect();
+        run(0, out);
+        return;
     }
     let chunk = n.div_ceil(t);
-    let f = &f;
-    std::thread::scope(|s| {
-        let handles: Vec<_> = (0..t)
-            .map(|i| {
-                s.spawn(move || (i * chunk..((i + 1) * chunk).min(n)).map(f).collect::<Vec<T>>())
-            })
-            .collect();
-        handles.into_iter().flat_map(|h| h.join().expect("element loop panicked")).collect()
-    })
+    let run = &run;
+    pool().scope(|s| {
+        for (i, part) in out.chunks_mut(chunk).enumerate() {
+            s.spawn(move |_| run(i * chunk, part));
+        }
+    });
+}
+
+/// `(0..n).map(f)` computed like [`fill_elements`], results in index order.
+pub(crate) fn map_elements<T: Send + Default + Clone>(
+    n: usize,
+    f: impl Fn(usize) -> T + Sync,
+) -> Vec<T> {
+    let mut out = vec![T::default(); n];
+    fill_elements(&mut out, f);
+    out
 }

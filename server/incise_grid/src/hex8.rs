@@ -64,6 +64,33 @@ impl Mat24 {
         std::array::from_fn(|r| (0..24).map(|c| self.get(r, c) * v[c]).sum())
     }
 
+    /// `self · v` for a symmetric matrix: the sum of `v[c]` times row `c` (= column `c`), a
+    /// sequence of 24-wide multiply-adds the compiler vectorises, in a fixed order (deterministic).
+    /// About four times faster than [`Mat24::mul_vec`]; wrong for a non-symmetric matrix.
+    // Always inlined: the caller may be compiled for wider vector instructions (incise_fem's
+    // run-time dispatch), and only an inlined copy gets them.
+    #[allow(clippy::inline_always)]
+    #[inline(always)]
+    #[must_use]
+    pub fn mul_vec_symmetric(&self, v: &[f64; 24]) -> [f64; 24] {
+        let mut out = [0.0; 24];
+        for (row, &vc) in self.0.chunks_exact(24).zip(v) {
+            for (o, &k) in out.iter_mut().zip(row) {
+                *o += k * vc;
+            }
+        }
+        out
+    }
+
+    /// `(self + selfᵀ) / 2`: exactly symmetric, for [`Mat24::mul_vec_symmetric`].
+    #[must_use]
+    pub fn symmetrized(&self) -> Self {
+        Self(std::array::from_fn(|i| {
+            let (r, c) = (i / 24, i % 24);
+            0.5 * (self.0[r * 24 + c] + self.0[c * 24 + r])
+        }))
+    }
+
     /// Frobenius norm.
     #[must_use]
     pub fn frobenius(&self) -> f64 {

@@ -6,10 +6,18 @@
 //! polar decomposition through the SVD it always returns a proper rotation, also for an inverted
 //! element (det A < 0), where the polar factor would be a reflection: the inversion then shows up
 //! as a large displacement in the rotated frame, so the elastic force pushes the element back
-//! instead of locking or flipping it. Warm-started from the previous step's rotation it converges
-//! in one or two iterations.
+//! instead of locking or flipping it.
+//!
+//! Müller's step is a Newton step on `tr(RᵀA)` with its Hessian `H = tr(B)·I − sym(B)`
+//! (`B = RᵀA`) replaced by `tr(B)·I`; for a nearly isotropic stretch that overestimates `H` by
+//! half, so each iteration gains only a factor of about three (eighteen iterations per element
+//! per step were measured). Where `H` is clearly positive definite (near the maximum) the exact
+//! Newton step is taken instead, which converges quadratically: warm-started from the previous
+//! step's rotation, two or three iterations. Elsewhere (far away, saddles, inversions) Müller's
+//! step keeps the method's robustness.
 
-use crate::mat3::{Mat3, cross, dot};
+use crate::Vec3;
+use crate::mat3::{Mat3, dot};
 
 /// A unit quaternion `w + xi + yj + zk`, the state carried between steps.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -71,27 +79,61 @@ impl Quat {
 /// Refines `q` (a warm start, e.g. the previous step's rotation) to the rotation closest to `a`
 /// in the sense of maximal tr(Rᵀa); at most `max_iterations` rotations. Returns the iterations used.
 pub fn extract_rotation(a: &Mat3, q: &mut Quat, max_iterations: usize) -> usize {
-    let col = |m: &Mat3, c: usize| [m[0][c], m[1][c], m[2][c]];
     for it in 0..max_iterations {
         let r = q.to_matrix();
-        let mut num = [0.0; 3];
-        let mut den = 0.0;
-        for c in 0..3 {
-            let (rc, ac) = (col(&r, c), col(a, c));
-            let x = cross(&rc, &ac);
-            num = [num[0] + x[0], num[1] + x[1], num[2] + x[2]];
-            den += dot(&rc, &ac);
-        }
-        let inv = 1.0 / (den.abs() + 1e-9);
-        let omega = [num[0] * inv, num[1] * inv, num[2] * inv];
-        let w = dot(&omega, &omega).sqrt();
-        if w < 1e-12 {
+        // B = Rᵀa. Turning R by a small θ in its own frame, R' = R·exp([θ]×), changes tr(R'ᵀa)
+        // by gᵀθ − ½ θᵀHθ with g = axial(B − Bᵀ) and H = tr(B)·I − sym(B).
+        let b: Mat3 = std::array::from_fn(|i| {
+            std::array::from_fn(|j| r[0][i] * a[0][j] + r[1][i] * a[1][j] + r[2][i] * a[2][j])
+        });
+        let g = [b[2][1] - b[1][2], b[0][2] - b[2][0], b[1][0] - b[0][1]];
+        let t = b[0][0] + b[1][1] + b[2][2];
+        let h: Mat3 = std::array::from_fn(|i| {
+            std::array::from_fn(|j| {
+                let s = -0.5 * (b[i][j] + b[j][i]);
+                if i == j { s + t } else { s }
+            })
+        });
+        let theta = newton_step(&h, &g)
+            // Müller et al.'s step: H replaced by |tr B|·I, safe far from the maximum (and for
+            // inverted elements), but only linearly convergent (about a factor 3 per iteration).
+            .unwrap_or_else(|| {
+                let inv = 1.0 / (t.abs() + 1e-9);
+                [g[0] * inv, g[1] * inv, g[2] * inv]
+            });
+        if dot(&theta, &theta) < 1e-24 {
             return it;
         }
-        let axis = [omega[0] / w, omega[1] / w, omega[2] / w];
-        *q = Quat::from_axis_angle(&axis, w).mul(q).normalized();
+        // The turn by θ is taken as the unnormalised quaternion (1, θ/2): the same axis and an
+        // angle 2·atan(|θ|/2) ≈ |θ| as θ → 0, so the fixed point (θ = 0) is the same, a step never
+        // exceeds half a turn, and no sin/cos is evaluated (this runs per element per step).
+        let step = Quat { w: 1.0, v: [0.5 * theta[0], 0.5 * theta[1], 0.5 * theta[2]] };
+        *q = q.mul(&step).normalized();
     }
     max_iterations
+}
+
+/// The Newton step `H⁻¹g` when `H` is clearly positive definite (near the maximum, where it
+/// converges quadratically: two or three iterations from the previous step's rotation), else
+/// `None`. Steps over a radian are refused too: the quadratic model is not trusted that far.
+fn newton_step(h: &Mat3, g: &Vec3) -> Option<Vec3> {
+    let scale = h[0][0].abs() + h[1][1].abs() + h[2][2].abs();
+    let m1 = h[0][0];
+    let m2 = h[0][0] * h[1][1] - h[0][1] * h[1][0];
+    let d = crate::mat3::det(h);
+    let eps = 1e-6 * scale;
+    if !(m1 > eps && m2 > eps * scale && d > eps * scale * scale) {
+        return None;
+    }
+    let inv = 1.0 / d;
+    let cof = |i: usize, j: usize| {
+        let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
+        let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
+        h[i1][j1] * h[i2][j2] - h[i1][j2] * h[i2][j1]
+    };
+    // H is symmetric, so its inverse is the cofactor matrix over the determinant.
+    let theta: Vec3 = std::array::from_fn(|i| (0..3).map(|j| cof(i, j) * g[j]).sum::<f64>() * inv);
+    (dot(&theta, &theta) <= 1.0).then_some(theta)
 }
 
 /// `tr(Rᵀa)` for the rotation `q`: what [`extract_rotation`] maximises.

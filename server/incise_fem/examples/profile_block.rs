@@ -1,0 +1,80 @@
+//! Steps the hanging block of scene B for profiling (`perf record`), printing the time per step
+//! and the CG iterations: `cargo run --release -p incise_fem --example profile_block -- 22,15,12 implicit 0.01 50`.
+
+use incise_fem::cg::CgSettings;
+use incise_fem::integrate::{BackwardEuler, LinearSolver, Loads, Rayleigh, State, explicit_step};
+use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
+use incise_grid::procedural::from_fn;
+use incise_grid::{BranchedGrid, Material, MaterialTable};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let cells: Vec<usize> = args
+        .get(1)
+        .map_or("22,15,12", String::as_str)
+        .split(',')
+        .map(|s| s.parse().expect("cells like 22,15,12"))
+        .collect();
+    let scheme = args.get(2).map_or("implicit", String::as_str).to_owned();
+    let dt: f64 = args.get(3).map_or(0.001, |s| s.parse().expect("dt"));
+    let steps: usize = args.get(4).map_or(50, |s| s.parse().expect("steps"));
+    let size = [0.15, 0.10, 0.08];
+    let spacing = std::array::from_fn(|a| size[a] / cells[a] as f64);
+    let v = from_fn([cells[0], cells[1], cells[2]], spacing, |_, _, _| 1);
+    let grid =
+        BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0)), 0)
+            .expect("block grid");
+    let model = HexModel::from_grid(&grid);
+    let fixed = FixedNodes::plane(&model.rest, 2, size[2], 1e-9);
+    let loads = Loads::gravity([0.0, 0.0, -9.81]);
+    let mut ff = HexForceField::new(&model, Formulation::Corotational);
+    let damping = Rayleigh { alpha: 2.0, beta: 0.01 };
+    let solver = match scheme.as_str() {
+        "cholesky-cg" => LinearSolver::CholeskyCg { refresh_iterations: 8 },
+        "cholesky" => LinearSolver::Cholesky,
+        _ => LinearSolver::JacobiCg,
+    };
+    let mut be = BackwardEuler::with_solver(
+        dt,
+        damping,
+        CgSettings { tolerance: 1e-6, max_iterations: 2000 },
+        solver,
+    );
+    if scheme == "solve-only" {
+        let mut f = incise_fem::cholesky::SystemFactor::new(&model, &fixed).expect("pattern");
+        f.factorize(&model, &ff, 1.0, dt * dt).expect("factor");
+        let r = vec![[1.0, 2.0, 3.0]; model.node_count()];
+        let mut z = r.clone();
+        let start = std::time::Instant::now();
+        for _ in 0..steps {
+            f.solve(&r, &mut z);
+        }
+        println!(
+            "{} dofs, {} nonzeros in the matrix: {:.1} µs per solve",
+            model.dof_count(),
+            f.nonzeros(),
+            1e6 * start.elapsed().as_secs_f64() / steps as f64
+        );
+        return;
+    }
+    let mut state = State::at_rest(&model);
+    let start = std::time::Instant::now();
+    let mut iterations = 0;
+    for _ in 0..steps {
+        if scheme == "explicit" {
+            explicit_step(&model, &mut ff, &fixed, &loads, damping.alpha, dt, &mut state);
+        } else {
+            iterations += be.step(&model, &mut ff, &fixed, &loads, &mut state).iterations;
+        }
+    }
+    let s = start.elapsed().as_secs_f64();
+
+    println!(
+        "{} elements, {scheme}, dt {dt}: {:.3} ms/step, {:.1} steps/s, {:.1} CG iterations/step, {} factorisations",
+        model.elements.len(),
+        1e3 * s / steps as f64,
+        steps as f64 / s,
+        iterations as f64 / steps as f64,
+        be.factorizations
+    );
+}

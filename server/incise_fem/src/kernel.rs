@@ -1,0 +1,31 @@
+//! The element stiffness product, the innermost loop of every force evaluation and CG iteration,
+//! compiled for the best instruction set the CPU offers (AVX2 where present, chosen at run time by
+//! `pulp`): 4-wide instead of SSE2's 2-wide, about twice as fast. Floating-point operations are
+//! never contracted or reordered, so every path gives the same bits.
+
+use incise_grid::hex8::Mat24;
+
+/// `k · v` for a symmetric element stiffness `k` (see [`Mat24::mul_vec_symmetric`]).
+#[inline]
+pub(crate) fn symmetric_product(k: &Mat24, v: &[f64; 24]) -> [f64; 24] {
+    pulp::Arch::new().dispatch(Product { k, v })
+}
+
+/// The product as a `pulp` operation. A struct rather than a closure: a closure handed to
+/// `dispatch` goes through a `FnOnce` shim the compiler does not inline, and then runs without
+/// the wider instructions.
+struct Product<'a> {
+    k: &'a Mat24,
+    v: &'a [f64; 24],
+}
+
+impl pulp::WithSimd for Product<'_> {
+    type Output = [f64; 24];
+
+    // Inlined into pulp's feature-enabled entry point, or it would not get the wide instructions.
+    #[allow(clippy::inline_always)]
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> [f64; 24] {
+        self.k.mul_vec_symmetric(self.v)
+    }
+}

@@ -1,6 +1,7 @@
 //! The committed scene files (`deploy/scenes/*.toml`) through `incise_io::read_scene` and
 //! `incise_sim::Simulation`, and the errors a broken scene file gets.
 
+use incise_sim::config::AutoLevel;
 use incise_sim::{SceneConfig, SceneError, Simulation};
 use incise_tests::scene;
 
@@ -122,4 +123,59 @@ fn explicit_scene_above_its_stability_limit_is_refused() {
     let volume = config.procedural_volume().unwrap();
     let err = Simulation::new(&config, &volume, "x.toml").err().expect("refused");
     assert!(err.to_string().contains("stability limit"), "{err}");
+}
+
+#[test]
+fn auto_model_runs_on_the_coarsest_level_within_its_error() {
+    let sim = load("liver_auto.toml");
+    let c = sim.calibration().expect("auto scenes calibrate");
+    for l in &c.levels {
+        println!(
+            "level {} {:>6} elements {:>6} dofs  estimated error {:6.2} %",
+            l.level,
+            l.elements,
+            l.dofs,
+            100.0 * l.error
+        );
+    }
+    println!("chosen level {} (max_error {} %)", c.chosen, 100.0 * c.max_error);
+    assert_eq!(c.reference_level, 0, "level 0 of the 13k liver is affordable");
+    assert!(c.chosen > 0, "the scene's 40 % bound admits a coarser level");
+    assert_eq!(sim.config().level, c.chosen);
+    let chosen = c.levels.iter().find(|l| l.level == c.chosen).unwrap();
+    assert!(chosen.error <= c.max_error);
+    // The coarsest within the error: every coarser level misses it.
+    assert!(c.levels.iter().filter(|l| l.level > c.chosen).all(|l| l.error > c.max_error));
+    assert!(c.levels.iter().any(|l| l.level == 0 && l.error == 0.0));
+    // A looser bound never picks a finer level.
+    let path = scene("liver_auto.toml");
+    let (mut config, volume) = incise_io::read_scene(&path).unwrap();
+    config.auto_level = config.auto_level.map(|a| AutoLevel { max_error: 0.95, ..a });
+    let looser = Simulation::new(&config, &volume, &path.display().to_string()).unwrap();
+    assert!(looser.config().level >= c.chosen);
+    // And a tight one runs on the reference level.
+    config.auto_level = config.auto_level.map(|a| AutoLevel { max_error: 1e-3, ..a });
+    let tight = Simulation::new(&config, &volume, &path.display().to_string()).unwrap();
+    assert_eq!(tight.config().level, 0);
+}
+
+#[test]
+fn auto_model_keys_are_checked() {
+    let auto =
+        GOOD.replace("[integrator]", "[model]\nkind = \"auto\"\nmax_error = 0.05\n[integrator]");
+    assert!(SceneConfig::from_toml(&auto, "good.toml").unwrap().auto_level.is_some());
+    let e = error(&format!("level = 1\n{auto}"));
+    assert!(e.to_string().starts_with("bad.toml:1:") && e.to_string().contains("`level`"), "{e}");
+    let e = error(&auto.replace("max_error = 0.05", "max_error = 5.0"));
+    assert!(e.to_string().contains("model.max_error"), "{e}");
+    let e = error(&auto.replace("kind = \"auto\"", "kind = \"corotational\""));
+    assert!(e.to_string().contains("model.max_error") && e.to_string().contains("auto"), "{e}");
+    let e = error(&auto.replace("max_error = 0.05", "max_level = 9"));
+    assert!(e.to_string().contains("model.max_level"), "{e}");
+    // Without a support there is no static solve to calibrate with.
+    let free = auto.replace("[[fixed]]\nplane = \"z\"\nvalue = 0.1\n", "");
+    let config = SceneConfig::from_toml(&free, "free.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    let err = Simulation::new(&config, &volume, "free.toml").err().expect("refused");
+    assert!(err.to_string().contains("fixed"), "{err}");
 }

@@ -74,6 +74,18 @@ pub enum ModelKind {
     Corotational,
 }
 
+/// `model.kind = "auto"`: the grid level is chosen when the scene is built, as the coarsest level
+/// (up to `max_level`) whose estimated error fits `max_error`; the error of each level is
+/// estimated by a static calibration against the finest affordable level (see
+/// `incise_sim::calibration`). The model is corotational.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AutoLevel {
+    /// Largest acceptable relative error (0.05 = 5 %).
+    pub max_error: f64,
+    /// Coarsest level considered.
+    pub max_level: u32,
+}
+
 /// The time integrator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum IntegratorKind {
@@ -137,6 +149,9 @@ pub struct SceneConfig {
     pub materials: Vec<MaterialSpec>,
     /// The model.
     pub model: ModelKind,
+    /// Set when `model.kind = "auto"`: `level` is then chosen by calibration (and `model` is
+    /// corotational).
+    pub auto_level: Option<AutoLevel>,
     /// The integrator.
     pub integrator: IntegratorKind,
     /// Time step (s).
@@ -208,6 +223,10 @@ struct RawMaterial {
 #[serde(deny_unknown_fields)]
 struct RawModel {
     kind: Spanned<String>,
+    #[serde(default)]
+    max_error: Option<Spanned<f64>>,
+    #[serde(default)]
+    max_level: Option<Spanned<i64>>,
 }
 
 #[derive(Deserialize)]
@@ -412,19 +431,77 @@ impl SceneConfig {
                 message: "the scene has no `[[materials]]`".into(),
             });
         }
+        let mut auto_level = None;
         let model = match &raw.model {
             None => ModelKind::Corotational,
-            Some(m) => match m.kind.get_ref().as_str() {
-                "linear" => ModelKind::Linear,
-                "corotational" => ModelKind::Corotational,
-                other => {
-                    return Err(c.invalid(
-                        m.kind.span(),
-                        "model.kind",
-                        format!("is \"{other}\"; expected \"linear\" or \"corotational\""),
-                    ));
+            Some(m) => {
+                let kind = match m.kind.get_ref().as_str() {
+                    "linear" => ModelKind::Linear,
+                    "corotational" | "auto" => ModelKind::Corotational,
+                    other => {
+                        return Err(c.invalid(
+                            m.kind.span(),
+                            "model.kind",
+                            format!(
+                                "is \"{other}\"; expected \"linear\", \"corotational\" or \"auto\""
+                            ),
+                        ));
+                    }
+                };
+                if m.kind.get_ref() == "auto" {
+                    if let Some(l) = &raw.level {
+                        return Err(c.invalid(
+                            l.span(),
+                            "level",
+                            "is chosen by `model.kind = \"auto\"`; remove `level` (or set `model.max_level`)",
+                        ));
+                    }
+                    auto_level = Some(AutoLevel {
+                        max_error: match &m.max_error {
+                            None => 0.05,
+                            Some(e) if *e.get_ref() > 0.0 && *e.get_ref() <= 1.0 => *e.get_ref(),
+                            Some(e) => {
+                                return Err(c.invalid(
+                                    e.span(),
+                                    "model.max_error",
+                                    format!(
+                                        "is {}; it is a relative error in (0, 1], e.g. 0.05",
+                                        e.get_ref()
+                                    ),
+                                ));
+                            }
+                        },
+                        max_level: match &m.max_level {
+                            None => 3,
+                            Some(l)
+                                if (0..=i64::from(incise_grid::grid::MAX_LEVELS))
+                                    .contains(l.get_ref()) =>
+                            {
+                                *l.get_ref() as u32
+                            }
+                            Some(l) => {
+                                return Err(c.invalid(
+                                    l.span(),
+                                    "model.max_level",
+                                    format!(
+                                        "is {}; it must be between 0 and {}",
+                                        l.get_ref(),
+                                        incise_grid::grid::MAX_LEVELS
+                                    ),
+                                ));
+                            }
+                        },
+                    });
+                } else if let Some((span, key)) = m
+                    .max_error
+                    .as_ref()
+                    .map(|e| (e.span(), "model.max_error"))
+                    .or_else(|| m.max_level.as_ref().map(|l| (l.span(), "model.max_level")))
+                {
+                    return Err(c.invalid(span, key, "applies only to `model.kind = \"auto\"`"));
                 }
-            },
+                kind
+            }
         };
         let i = &raw.integrator;
         let integrator = match i.kind.get_ref().as_str() {
@@ -531,6 +608,7 @@ impl SceneConfig {
             level,
             materials,
             model,
+            auto_level,
             integrator,
             dt,
             cg_tolerance,

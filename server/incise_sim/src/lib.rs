@@ -4,6 +4,7 @@
 //! Pure: no file I/O. A scene whose volume is a file gets its [`incise_grid::LabelVolume`] from
 //! the caller (`incise_io` reads it); procedural volumes are built here.
 
+pub mod calibration;
 pub mod config;
 pub mod simulation;
 

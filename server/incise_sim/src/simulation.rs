@@ -1,6 +1,7 @@
 //! The simulation loop of one scene: the branched grid at the configured level, the hexahedral
 //! model and force field, fixed nodes, loads and the integrator, advanced one step per call.
 
+use crate::calibration::{Calibration, calibrate};
 use crate::config::{FixedSpec, IntegratorKind, ModelKind, SceneConfig, SceneError, VolumeSpec};
 use incise_fem::cg::CgSettings;
 use incise_fem::integrate::{
@@ -48,6 +49,7 @@ enum Integrator {
 /// A running scene.
 pub struct Simulation {
     config: SceneConfig,
+    calibration: Option<Calibration>,
     grid: BranchedGrid,
     model: HexModel,
     force_field: HexForceField,
@@ -88,7 +90,11 @@ impl SceneConfig {
 }
 
 /// The nodes of the scene's fixed regions.
-fn fixed_nodes(config: &SceneConfig, grid: &BranchedGrid, model: &HexModel) -> FixedNodes {
+pub(crate) fn fixed_nodes(
+    config: &SceneConfig,
+    grid: &BranchedGrid,
+    model: &HexModel,
+) -> FixedNodes {
     let tolerance = 1e-9 * grid.element_size().iter().copied().fold(0.0, f64::max);
     let mut fixed = FixedNodes::none(model.node_count());
     for f in &config.fixed {
@@ -104,7 +110,7 @@ fn fixed_nodes(config: &SceneConfig, grid: &BranchedGrid, model: &HexModel) -> F
 }
 
 /// Gravity plus the scene's patch loads spread over the model's nodes.
-fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Loads, String> {
+pub(crate) fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Loads, String> {
     let mut nodal = vec![[0.0; 3]; model.node_count()];
     for (k, load) in config.loads.iter().enumerate() {
         let patch: Vec<usize> = (0..model.node_count())
@@ -151,6 +157,17 @@ impl Simulation {
         for m in &config.materials {
             table.insert(m.label, m.material);
         }
+        let mut config = config.clone();
+        let calibration = match config.auto_level {
+            Some(auto) => {
+                let c = calibrate(&config, &volume, &table, auto)
+                    .map_err(|e| build(format!("model.kind = \"auto\": {e}")))?;
+                config.level = c.chosen;
+                Some(c)
+            }
+            None => None,
+        };
+        let config = &config;
         let grid =
             BranchedGrid::build(&volume, &table, config.level).map_err(|e| build(e.to_string()))?;
         let model = HexModel::from_grid(&grid);
@@ -189,6 +206,7 @@ impl Simulation {
         let state = State::at_rest(&model);
         Ok(Self {
             config: config.clone(),
+            calibration,
             grid,
             model,
             force_field,
@@ -331,10 +349,16 @@ impl Simulation {
         Ok(changes)
     }
 
-    /// The scene's configuration.
+    /// The scene's configuration (with `model.kind = "auto"`, `level` is the level chosen).
     #[must_use]
     pub fn config(&self) -> &SceneConfig {
         &self.config
+    }
+
+    /// With `model.kind = "auto"`: the per-level error estimates and the level chosen.
+    #[must_use]
+    pub fn calibration(&self) -> Option<&Calibration> {
+        self.calibration.as_ref()
     }
 
     /// The grid.

@@ -1,0 +1,129 @@
+//! `model.kind = "auto"`: model only what the scene needs. Each level of the branched grid up to
+//! `max_level` is solved statically (linear elasticity, the scene's own supports and loads) and
+//! its error estimated against the finest level that is affordable to solve (at most
+//! [`REFERENCE_MAX_DOFS`] unknowns; level 0 whenever it fits). The scene then runs on the
+//! coarsest level whose estimate is within `max_error`.
+//!
+//! The error measure is the displacement of the centre of mass, `ū = Σ mₙuₙ / Σ mₙ` with the
+//! condensed lumped masses: `|ū_l − ū_ref| / |ū_ref|`. Under gravity it is the error of the work
+//! the load does (the compliance), the global stiffness a user feels; it is the measure of the
+//! Nesme comparison in `tests/nesme.rs`.
+
+use crate::SceneConfig;
+use crate::config::AutoLevel;
+use crate::simulation::{fixed_nodes, patch_loads};
+use incise_fem::integrate::static_solve_with;
+use incise_fem::{Formulation, HexForceField, HexModel};
+use incise_grid::{BranchedGrid, LabelVolume, MaterialTable};
+
+/// The reference level is the finest with at most this many unknowns (a sparse Cholesky solve
+/// of a few seconds on two cores).
+pub const REFERENCE_MAX_DOFS: usize = 60_000;
+
+/// One calibrated level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LevelEstimate {
+    /// Grid level.
+    pub level: u32,
+    /// Elements of the level's model.
+    pub elements: usize,
+    /// Unknowns (3 per node).
+    pub dofs: usize,
+    /// Estimated relative error against the reference level (0 for the reference itself).
+    pub error: f64,
+}
+
+/// What the calibration found and chose.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Calibration {
+    /// The level the errors are measured against.
+    pub reference_level: u32,
+    /// Every level from the reference up to `max_level`.
+    pub levels: Vec<LevelEstimate>,
+    /// The level the scene runs on.
+    pub chosen: u32,
+    /// The acceptable error it was chosen for.
+    pub max_error: f64,
+}
+
+/// Calibrates `volume` (already filtered and strided) for `config` and picks the level.
+///
+/// # Errors
+/// When a level cannot be built, the scene has no support (a static solve needs fixed nodes), or
+/// a static solve does not converge.
+pub fn calibrate(
+    config: &SceneConfig,
+    volume: &LabelVolume,
+    table: &MaterialTable,
+    auto: AutoLevel,
+) -> Result<Calibration, String> {
+    let mut solved: Vec<(u32, usize, usize, [f64; 3])> = Vec::new();
+    for level in (0..=auto.max_level).rev() {
+        let grid = BranchedGrid::build(volume, table, level).map_err(|e| e.to_string())?;
+        let model = HexModel::from_grid(&grid);
+        if model.dof_count() > REFERENCE_MAX_DOFS && !solved.is_empty() {
+            break;
+        }
+        solved.push((
+            level,
+            model.elements.len(),
+            model.dof_count(),
+            centre_shift(config, &grid, &model)?,
+        ));
+    }
+    let &(reference_level, _, _, reference) = solved.last().expect("max_level is solved");
+    let size = reference.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if size == 0.0 {
+        return Err("the loads do not move the centre of mass; nothing to calibrate".into());
+    }
+    let mut levels: Vec<LevelEstimate> = solved
+        .iter()
+        .map(|&(level, elements, dofs, u)| LevelEstimate {
+            level,
+            elements,
+            dofs,
+            error: (0..3).map(|a| (u[a] - reference[a]).powi(2)).sum::<f64>().sqrt() / size,
+        })
+        .collect();
+    levels.reverse();
+    let chosen = levels
+        .iter()
+        .rev()
+        .find(|l| l.error <= auto.max_error)
+        .map_or(reference_level, |l| l.level);
+    Ok(Calibration { reference_level, levels, chosen, max_error: auto.max_error })
+}
+
+/// Static displacement of the centre of mass of the level's model under the scene's loads.
+fn centre_shift(
+    config: &SceneConfig,
+    grid: &BranchedGrid,
+    model: &HexModel,
+) -> Result<[f64; 3], String> {
+    let fixed = fixed_nodes(config, grid, model);
+    if fixed.count() == 0 {
+        return Err(
+            "model.kind = \"auto\" calibrates with a static solve, which needs a `[[fixed]]` region"
+                .into(),
+        );
+    }
+    let loads = patch_loads(config, model)?;
+    let mut ff = HexForceField::new(model, Formulation::Linear);
+    let mut x = model.rest.clone();
+    let report = static_solve_with(model, &mut ff, &fixed, &loads, &mut x, 1e-8, 4, true);
+    if !report.converged {
+        return Err(format!(
+            "the static calibration solve at level {} did not converge (residual {:.2e})",
+            grid.top_level(),
+            report.relative_residual
+        ));
+    }
+    let mass = model.total_mass();
+    let mut u = [0.0; 3];
+    for ((p, q), m) in x.iter().zip(&model.rest).zip(&model.lumped_mass) {
+        for a in 0..3 {
+            u[a] += m * (p[a] - q[a]) / mass;
+        }
+    }
+    Ok(u)
+}

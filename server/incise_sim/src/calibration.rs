@@ -71,7 +71,9 @@ pub fn calibrate(
             centre_shift(config, &grid, &model)?,
         ));
     }
-    let &(reference_level, _, _, reference) = solved.last().expect("max_level is solved");
+    let Some(&(reference_level, _, _, reference)) = solved.last() else {
+        return Err("no level to calibrate".into());
+    };
     let size = reference.iter().map(|x| x * x).sum::<f64>().sqrt();
     if size == 0.0 {
         return Err("the loads do not move the centre of mass; nothing to calibrate".into());

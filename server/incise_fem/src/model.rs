@@ -118,13 +118,21 @@ impl HexModel {
     }
 }
 
-/// One shared copy per distinct (bit-identical) stiffness matrix.
+/// One shared copy per distinct (bit-identical) stiffness matrix. Keyed by a few sampled entries
+/// (hashing all 576 on every element made a model rebuild after a cut several times slower) and
+/// confirmed by a full comparison.
 #[derive(Default)]
-struct SharedMatrices(HashMap<Vec<u64>, Arc<Mat24>>);
+struct SharedMatrices(HashMap<[u64; 6], Vec<Arc<Mat24>>>);
 
 impl SharedMatrices {
     fn get(&mut self, m: Mat24) -> Arc<Mat24> {
-        let key: Vec<u64> = m.0.iter().map(|x| x.to_bits()).collect();
-        self.0.entry(key).or_insert_with(|| Arc::new(m)).clone()
+        let key = [0, 25, 100, 299, 433, 575].map(|i| m.0[i].to_bits());
+        let same = self.0.entry(key).or_default();
+        if let Some(found) = same.iter().find(|s| s.0 == m.0) {
+            return found.clone();
+        }
+        let shared = Arc::new(m);
+        same.push(shared.clone());
+        shared
     }
 }

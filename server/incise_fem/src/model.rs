@@ -128,7 +128,9 @@ impl SharedMatrices {
     fn get(&mut self, m: Mat24) -> Arc<Mat24> {
         let key = [0, 25, 100, 299, 433, 575].map(|i| m.0[i].to_bits());
         let same = self.0.entry(key).or_default();
-        if let Some(found) = same.iter().find(|s| s.0 == m.0) {
+        if let Some(found) =
+            same.iter().find(|s| s.0.iter().zip(&m.0).all(|(a, b)| a.to_bits() == b.to_bits()))
+        {
             return found.clone();
         }
         let shared = Arc::new(m);

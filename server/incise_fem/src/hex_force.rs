@@ -7,13 +7,14 @@
 //!   `incise_math::rotation` (warm-started from the previous call); forces are
 //!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit solves is `R K Rᵀ` per element.
 
-use crate::kernel::symmetric_product;
+use crate::kernel::{symmetric_product, symmetric_product_pair};
 use crate::model::HexModel;
-use crate::parallel::{fill_elements, map_elements};
+use crate::parallel::{fill_element_pairs, fill_elements, map_elements};
 use incise_grid::hex8::corner;
 use incise_math::Vec3;
 use incise_math::mat3::{Mat3, mul_transpose_vec, mul_vec};
 use incise_math::rotation::{Quat, nearest_rotation};
+use std::sync::Arc;
 
 /// How element rotations are treated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -123,6 +124,7 @@ impl HexForceField {
     }
 
     /// Displacement of element `e` in its rotated frame, `Rᵀx − x₀`, as a 24-vector.
+    #[inline]
     fn local_displacement(&self, model: &HexModel, e: usize, x: &[Vec3]) -> [f64; 24] {
         let el = &model.elements[e];
         let r = &self.matrices[e];
@@ -138,46 +140,95 @@ impl HexForceField {
         u
     }
 
-    /// Elastic forces of element `e` on its 8 corners.
-    fn element_forces(&self, model: &HexModel, e: usize, x: &[Vec3]) -> [Vec3; 8] {
-        let u = self.local_displacement(model, e, x);
-        let g = symmetric_product(&model.elements[e].stiffness, &u);
+    /// Element `e`'s vector `p` in its rotated frame, `Rᵀp`, as a 24-vector.
+    #[inline]
+    fn local_vector(&self, model: &HexModel, e: usize, p: &[Vec3]) -> [f64; 24] {
+        let el = &model.elements[e];
+        let r = &self.matrices[e];
+        let mut local = [0.0; 24];
+        for (c, &n) in el.nodes.iter().enumerate() {
+            let v = p[n as usize];
+            let q =
+                if self.formulation == Formulation::Linear { v } else { mul_transpose_vec(r, &v) };
+            local[3 * c..3 * c + 3].copy_from_slice(&q);
+        }
+        local
+    }
+
+    /// `scale · R g` per corner: an element product back in the global frame.
+    #[inline]
+    fn global_corners(&self, e: usize, scale: f64, g: &[f64; 24]) -> [Vec3; 8] {
         let r = &self.matrices[e];
         std::array::from_fn(|c| {
-            let gc = [-g[3 * c], -g[3 * c + 1], -g[3 * c + 2]];
+            let gc = [scale * g[3 * c], scale * g[3 * c + 1], scale * g[3 * c + 2]];
             if self.formulation == Formulation::Linear { gc } else { mul_vec(r, &gc) }
         })
     }
 
+    /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product. Neighbouring
+    /// elements with the same stiffness (every full cell of a material) are multiplied as a
+    /// pair, loading the matrix once; the result does not depend on the pairing.
+    fn add_products(
+        &self,
+        model: &HexModel,
+        scale: f64,
+        local: impl Fn(usize) -> [f64; 24] + Sync,
+        out: &mut [Vec3],
+    ) {
+        with_scratch(model.elements.len(), |per_element| {
+            fill_element_pairs(per_element, |e, slots| {
+                let k = &model.elements[e].stiffness;
+                if let [first, second] = slots
+                    && Arc::ptr_eq(k, &model.elements[e + 1].stiffness)
+                {
+                    let (g, h) = symmetric_product_pair(k, &local(e), &local(e + 1));
+                    *first = self.global_corners(e, scale, &g);
+                    *second = self.global_corners(e + 1, scale, &h);
+                } else {
+                    for (i, slot) in slots.iter_mut().enumerate() {
+                        let el = &model.elements[e + i].stiffness;
+                        *slot = self.global_corners(
+                            e + i,
+                            scale,
+                            &symmetric_product(el, &local(e + i)),
+                        );
+                    }
+                }
+            });
+            scatter(model, per_element, out);
+        });
+    }
+
     /// `f += elastic forces at positions x` (call [`HexForceField::update_rotations`] first).
     pub fn add_forces(&self, model: &HexModel, x: &[Vec3], f: &mut [Vec3]) {
-        with_scratch(model.elements.len(), |per_element| {
-            fill_elements(per_element, |e| self.element_forces(model, e, x));
-            scatter(model, per_element, f);
-        });
+        self.add_products(model, -1.0, |e| self.local_displacement(model, e, x), f);
     }
 
     /// `out += scale · K(x) p`, with `K` the (rotated) stiffness, element by element.
     pub fn add_stiffness_times(&self, model: &HexModel, scale: f64, p: &[Vec3], out: &mut [Vec3]) {
-        let linear = self.formulation == Formulation::Linear;
-        with_scratch(model.elements.len(), |per_element| {
-            fill_elements(per_element, |e| {
-                let el = &model.elements[e];
-                let r = &self.matrices[e];
-                let mut local = [0.0; 24];
-                for (c, &n) in el.nodes.iter().enumerate() {
-                    let v = p[n as usize];
-                    let q = if linear { v } else { mul_transpose_vec(r, &v) };
-                    local[3 * c..3 * c + 3].copy_from_slice(&q);
-                }
-                let g = symmetric_product(&el.stiffness, &local);
-                std::array::from_fn(|c| {
-                    let gc = [scale * g[3 * c], scale * g[3 * c + 1], scale * g[3 * c + 2]];
-                    if linear { gc } else { mul_vec(r, &gc) }
-                })
-            });
-            scatter(model, per_element, out);
-        });
+        self.add_products(model, scale, |e| self.local_vector(model, e, p), out);
+    }
+
+    /// `out += f(x) + scale · K(x) p` in one element loop (the right-hand side of an implicit
+    /// step): `−R K ((Rᵀx − x₀) − scale · Rᵀp)` per element.
+    pub fn add_forces_and_stiffness_times(
+        &self,
+        model: &HexModel,
+        x: &[Vec3],
+        scale: f64,
+        p: &[Vec3],
+        out: &mut [Vec3],
+    ) {
+        self.add_products(
+            model,
+            -1.0,
+            |e| {
+                let u = self.local_displacement(model, e, x);
+                let q = self.local_vector(model, e, p);
+                std::array::from_fn(|i| u[i] - scale * q[i])
+            },
+            out,
+        );
     }
 
     /// The 3×3 diagonal blocks of the (rotated) stiffness, per node: `R K_cc Rᵀ` summed.

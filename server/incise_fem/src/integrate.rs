@@ -287,14 +287,13 @@ impl BackwardEuler {
         // rhs = h (f_int + f_ext − αM v − (β + h) K v)
         let mut rhs = vec![[0.0; 3]; n];
         loads.add_to(model, &mut rhs);
-        ff.add_forces(model, &state.x, &mut rhs);
+        ff.add_forces_and_stiffness_times(model, &state.x, -(beta + h), &state.v, &mut rhs);
         for (i, r) in rhs.iter_mut().enumerate() {
             let m = model.lumped_mass[i];
             for k in 0..3 {
                 r[k] -= alpha * m * state.v[i][k];
             }
         }
-        ff.add_stiffness_times(model, -(beta + h), &state.v, &mut rhs);
         for r in &mut rhs {
             for k in 0..3 {
                 r[k] *= h;

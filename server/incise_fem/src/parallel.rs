@@ -72,6 +72,30 @@ pub(crate) fn fill_elements<T: Send>(out: &mut [T], f: impl Fn(usize) -> T + Syn
     });
 }
 
+/// Like [`fill_elements`], but `f(start, slots)` fills a run of two consecutive outputs at once
+/// (one at the very end of an odd-length chunk), so that neighbours sharing data can be computed
+/// together. Chunks start at even indices whatever the thread count.
+pub(crate) fn fill_element_pairs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
+    let run = |start: usize, out: &mut [T]| {
+        for (k, pair) in out.chunks_mut(2).enumerate() {
+            f(start + 2 * k, pair);
+        }
+    };
+    let n = out.len();
+    let t = threads();
+    if t == 1 || n < PARALLEL_MIN {
+        run(0, out);
+        return;
+    }
+    let chunk = n.div_ceil(t).next_multiple_of(2);
+    let run = &run;
+    pool().scope(|s| {
+        for (i, part) in out.chunks_mut(chunk).enumerate() {
+            s.spawn(move |_| run(i * chunk, part));
+        }
+    });
+}
+
 /// `(0..n).map(f)` computed like [`fill_elements`], results in index order.
 pub(crate) fn map_elements<T: Send + Default + Clone>(
     n: usize,

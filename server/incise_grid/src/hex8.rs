@@ -315,8 +315,9 @@ mod tests {
         let (a, b) = (k.mul_vec(&v), k.mul_vec_symmetric(&v));
         let w: [f64; 24] = std::array::from_fn(|i| v[23 - i] - 0.5);
         let (pv, pw) = k.mul_vec_symmetric_pair(&v, &w);
-        assert_eq!(pv, b, "the pair's first product is the single one, bit for bit");
-        assert_eq!(pw, k.mul_vec_symmetric(&w), "and so is its second");
+        let bits = |x: &[f64; 24]| x.map(f64::to_bits);
+        assert_eq!(bits(&pv), bits(&b), "the pair's first product is the single one, bit for bit");
+        assert_eq!(bits(&pw), bits(&k.mul_vec_symmetric(&w)), "and so is its second");
         let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
         // Same terms summed in a different order: equal to rounding.
         assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-14 * scale));

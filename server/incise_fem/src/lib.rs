@@ -16,6 +16,7 @@ pub mod integrate;
 mod kernel;
 pub mod model;
 mod parallel;
+pub mod tet;
 
 pub use constraints::FixedNodes;
 pub use hex_force::{Formulation, HexForceField};

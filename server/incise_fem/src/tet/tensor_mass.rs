@@ -1,0 +1,316 @@
+//! The tensor-mass form of linear and St Venant-Kirchhoff elasticity (paper 2 §3, eq. 7–10).
+//!
+//! Expanding the energy of a tetrahedron in the vertex displacements `Uⱼ` gives (eq. 7)
+//!
+//! `W = Σⱼₖ Uⱼᵀ Bⱼₖ Uₖ + Σⱼₖₗ (Uⱼ · Cⱼₖₗ)(Uₖ · Uₗ) + Σⱼₖₗₘ Dⱼₖₗₘ (Uⱼ · Uₖ)(Uₗ · Uₘ)`
+//!
+//! with, for shape vectors `αⱼ` and `sⱼₖ = αⱼ · αₖ` (eq. 8, times the rest volume `V₀`, which
+//! the paper folds into its notation):
+//! - `Bⱼₖ = V₀ (λ/2 αⱼ ⊗ αₖ + μ/2 (αₖ ⊗ αⱼ + sⱼₖ I))` (3×3; the linear model is this term alone),
+//! - `Cⱼₖₗ = V₀ (λ/2 αⱼ sₖₗ + μ/2 (αₗ sⱼₖ + αₖ sⱼₗ))` (a vector),
+//! - `Dⱼₖₗₘ = V₀ (λ/8 sⱼₖ sₗₘ + μ/4 sₖₗ sⱼₘ)` (a scalar).
+//!
+//! Summed over the tetrahedra around them (eq. 10), the terms live on the mesh's simplices: a
+//! term's vertex set is a vertex, an edge, a triangle or a tetrahedron. Terms are stored in
+//! canonical form (`Cⱼₖₗ` symmetrised in `k, l`; `Dⱼₖₗₘ` in `j, k`, in `l, m` and between the
+//! pairs) and grouped by simplex (vertices first, then edges, triangles, tetrahedra), and each
+//! term counts the tetrahedra that contribute to it. Removing a tetrahedron subtracts its own
+//! terms (recomputed from its rest shape, bit-identical to what was added) and sets a term whose
+//! last contributor is gone to exactly zero. The force on vertex `p` is `−∂W/∂Uₚ`.
+
+use super::element::{Elasticity, TetModel};
+use super::topology::{EDGES, TetTopology};
+use incise_math::Vec3;
+use incise_math::mat3::{Mat3, dot, mul_transpose_vec, mul_vec};
+use std::collections::{BTreeMap, HashMap};
+
+/// One tetrahedron's terms in canonical form (global vertex ids).
+#[derive(Default)]
+struct TetTerms {
+    vertex: Vec<(u32, Mat3)>,
+    /// `(edge id, lower vertex, M)` with energy `U_lowᵀ M U_high`.
+    edge: Vec<(u32, Mat3)>,
+    cubic: BTreeMap<[u32; 3], Vec3>,
+    quartic: BTreeMap<[u32; 4], f64>,
+}
+
+fn sorted2(a: u32, b: u32) -> [u32; 2] {
+    if a <= b { [a, b] } else { [b, a] }
+}
+
+/// The terms of tetrahedron `t` (only `B` for the linear model).
+fn tet_terms(model: &TetModel, topo: &TetTopology, t: usize, kind: Elasticity) -> TetTerms {
+    let a = &model.shape[t];
+    let v = model.volume[t];
+    let (lambda, mu) = (model.lame[t].lambda, model.lame[t].mu);
+    let g = model.tets[t];
+    let s: [[f64; 4]; 4] = std::array::from_fn(|j| std::array::from_fn(|k| dot(&a[j], &a[k])));
+    let b = |j: usize, k: usize| -> Mat3 {
+        std::array::from_fn(|r| {
+            std::array::from_fn(|c| {
+                let delta = if r == c { s[j][k] } else { 0.0 };
+                v * (0.5 * lambda * a[j][r] * a[k][c] + 0.5 * mu * (a[k][r] * a[j][c] + delta))
+            })
+        })
+    };
+    let mut out = TetTerms::default();
+    for j in 0..4 {
+        out.vertex.push((g[j], b(j, j)));
+    }
+    for (e, &[j, k]) in EDGES.iter().enumerate() {
+        // Bⱼₖ + Bₖⱼᵀ = 2 Bⱼₖ, oriented from the lower global vertex.
+        let (lo, hi) = if g[j] < g[k] { (j, k) } else { (k, j) };
+        let m = b(lo, hi).map(|row| row.map(|x| 2.0 * x));
+        out.edge.push((topo.tet_edges(t)[e], m));
+    }
+    if kind == Elasticity::Linear {
+        return out;
+    }
+    for j in 0..4 {
+        for k in 0..4 {
+            for l in 0..4 {
+                let c: Vec3 = std::array::from_fn(|r| {
+                    v * (0.5 * lambda * a[j][r] * s[k][l]
+                        + 0.5 * mu * (a[l][r] * s[j][k] + a[k][r] * s[j][l]))
+                });
+                let [lo, hi] = sorted2(g[k], g[l]);
+                let entry = out.cubic.entry([g[j], lo, hi]).or_insert([0.0; 3]);
+                for r in 0..3 {
+                    entry[r] += c[r];
+                }
+                for m in 0..4 {
+                    let d =
+                        v * (0.125 * lambda * s[j][k] * s[l][m] + 0.25 * mu * s[k][l] * s[j][m]);
+                    let (p, q) = (sorted2(g[j], g[k]), sorted2(g[l], g[m]));
+                    let (first, second) = if p <= q { (p, q) } else { (q, p) };
+                    *out.quartic
+                        .entry([first[0], first[1], second[0], second[1]])
+                        .or_insert(0.0) += d;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Sort key grouping terms by simplex: (vertex count, the sorted distinct vertices, the term).
+fn simplex_key<const N: usize>(key: &[u32; N]) -> (usize, [u32; 4], [u32; N]) {
+    let mut set = [u32::MAX; 4];
+    let mut n = 0;
+    let mut sorted = key.to_vec();
+    sorted.sort_unstable();
+    sorted.dedup();
+    for (i, &x) in sorted.iter().enumerate() {
+        set[i] = x;
+        n += 1;
+    }
+    (n, set, *key)
+}
+
+/// Terms keyed for grouping by simplex ([`simplex_key`]), with their sums and contributor counts.
+type Accumulated<const N: usize, T> = BTreeMap<(usize, [u32; 4], [u32; N]), (T, u32)>;
+
+/// Terms of one polynomial degree, grouped by simplex, with their contributor counts.
+#[derive(Clone, Debug, Default)]
+struct TermTable<const N: usize, T> {
+    keys: Vec<[u32; N]>,
+    values: Vec<T>,
+    contributors: Vec<u32>,
+    index: HashMap<[u32; N], u32>,
+}
+
+impl<const N: usize, T: Copy + Default> TermTable<N, T> {
+    fn build(all: Accumulated<N, T>) -> Self {
+        let mut table = Self::default();
+        for ((_, _, key), (value, count)) in all {
+            table.index.insert(key, table.keys.len() as u32);
+            table.keys.push(key);
+            table.values.push(value);
+            table.contributors.push(count);
+        }
+        table
+    }
+
+    /// Subtracts one contributor's `value` from `key` (zero exactly when none is left).
+    fn remove(&mut self, key: &[u32; N], value: T, sub: impl Fn(&mut T, &T)) {
+        let i = self.index[key] as usize;
+        self.contributors[i] -= 1;
+        if self.contributors[i] == 0 {
+            self.values[i] = T::default();
+        } else {
+            sub(&mut self.values[i], &value);
+        }
+    }
+}
+
+/// Linear or St Venant-Kirchhoff elasticity stored on vertices, edges, triangles and tetrahedra.
+#[derive(Clone, Debug)]
+pub struct TensorMassForceField {
+    kind: Elasticity,
+    /// `Σ Bₚₚ` per vertex.
+    vertex_b: Vec<Mat3>,
+    /// `Σ (Bₐᵦ + Bᵦₐᵀ)` per edge, oriented from its lower vertex.
+    edge_b: Vec<Mat3>,
+    edge_vertices: Vec<[u32; 2]>,
+    cubic: TermTable<3, Vec3>,
+    quartic: TermTable<4, f64>,
+}
+
+fn add3(a: &mut Mat3, b: &Mat3, sign: f64) {
+    for r in 0..3 {
+        for c in 0..3 {
+            a[r][c] += sign * b[r][c];
+        }
+    }
+}
+
+impl TensorMassForceField {
+    /// Precomputes the stiffness tensors of every live tetrahedron of `topo`.
+    #[must_use]
+    pub fn new(model: &TetModel, topo: &TetTopology, kind: Elasticity) -> Self {
+        let mut vertex_b = vec![[[0.0; 3]; 3]; model.vertex_count()];
+        let mut edge_b = vec![[[0.0; 3]; 3]; topo.edges().len()];
+        let mut cubic: Accumulated<3, Vec3> = BTreeMap::new();
+        let mut quartic: Accumulated<4, f64> = BTreeMap::new();
+        for t in (0..model.tets.len()).filter(|&t| topo.is_alive(t)) {
+            let terms = tet_terms(model, topo, t, kind);
+            for (n, m) in &terms.vertex {
+                add3(&mut vertex_b[*n as usize], m, 1.0);
+            }
+            for (e, m) in &terms.edge {
+                add3(&mut edge_b[*e as usize], m, 1.0);
+            }
+            for (key, c) in terms.cubic {
+                let entry = cubic.entry(simplex_key(&key)).or_insert(([0.0; 3], 0));
+                for r in 0..3 {
+                    entry.0[r] += c[r];
+                }
+                entry.1 += 1;
+            }
+            for (key, d) in terms.quartic {
+                let entry = quartic.entry(simplex_key(&key)).or_insert((0.0, 0));
+                entry.0 += d;
+                entry.1 += 1;
+            }
+        }
+        Self {
+            kind,
+            vertex_b,
+            edge_b,
+            edge_vertices: topo.edges().to_vec(),
+            cubic: TermTable::build(cubic),
+            quartic: TermTable::build(quartic),
+        }
+    }
+
+    /// Removes tetrahedron `t` from `topo` and subtracts its stiffness contributions; false when it
+    /// was already removed.
+    pub fn remove_tet(&mut self, model: &TetModel, topo: &mut TetTopology, t: usize) -> bool {
+        if !topo.remove(t) {
+            return false;
+        }
+        let terms = tet_terms(model, topo, t, self.kind);
+        for (n, m) in &terms.vertex {
+            if topo.vertex_degree(*n as usize) == 0 {
+                self.vertex_b[*n as usize] = [[0.0; 3]; 3];
+            } else {
+                add3(&mut self.vertex_b[*n as usize], m, -1.0);
+            }
+        }
+        for (e, m) in &terms.edge {
+            if topo.edge_degree(*e as usize) == 0 {
+                self.edge_b[*e as usize] = [[0.0; 3]; 3];
+            } else {
+                add3(&mut self.edge_b[*e as usize], m, -1.0);
+            }
+        }
+        for (key, c) in &terms.cubic {
+            self.cubic.remove(key, *c, |a, b| {
+                for r in 0..3 {
+                    a[r] -= b[r];
+                }
+            });
+        }
+        for (key, d) in &terms.quartic {
+            self.quartic.remove(key, *d, |a, b| *a -= b);
+        }
+        true
+    }
+
+    /// The model this field evaluates.
+    #[must_use]
+    pub fn elasticity(&self) -> Elasticity {
+        self.kind
+    }
+
+    /// Stored terms: (vertex tensors, edge tensors, cubic vectors, quartic scalars).
+    #[must_use]
+    pub fn term_counts(&self) -> (usize, usize, usize, usize) {
+        (self.vertex_b.len(), self.edge_b.len(), self.cubic.keys.len(), self.quartic.keys.len())
+    }
+
+    /// `f += elastic forces` at positions `x` (rest positions from `model`).
+    pub fn add_forces(&self, model: &TetModel, x: &[Vec3], f: &mut [Vec3]) {
+        let u: Vec<Vec3> = x
+            .iter()
+            .zip(&model.rest)
+            .map(|(p, r)| [p[0] - r[0], p[1] - r[1], p[2] - r[2]])
+            .collect();
+        let sub = |f: &mut Vec3, v: Vec3, scale: f64| {
+            for k in 0..3 {
+                f[k] -= scale * v[k];
+            }
+        };
+        for (n, b) in self.vertex_b.iter().enumerate() {
+            sub(&mut f[n], mul_vec(b, &u[n]), 2.0);
+        }
+        for (&[lo, hi], m) in self.edge_vertices.iter().zip(&self.edge_b) {
+            let (lo, hi) = (lo as usize, hi as usize);
+            sub(&mut f[lo], mul_vec(m, &u[hi]), 1.0);
+            sub(&mut f[hi], mul_transpose_vec(m, &u[lo]), 1.0);
+        }
+        // (Uⱼ · c)(Uₖ · Uₗ): ∂/∂Uⱼ = c (Uₖ · Uₗ), ∂/∂Uₖ = (Uⱼ · c) Uₗ, ∂/∂Uₗ = (Uⱼ · c) Uₖ.
+        for (&[j, k, l], c) in self.cubic.keys.iter().zip(&self.cubic.values) {
+            let (j, k, l) = (j as usize, k as usize, l as usize);
+            let ukl = dot(&u[k], &u[l]);
+            let ujc = dot(&u[j], c);
+            sub(&mut f[j], *c, ukl);
+            sub(&mut f[k], u[l], ujc);
+            sub(&mut f[l], u[k], ujc);
+        }
+        // d (Uₐ · Uᵦ)(U꜀ · Uₔ).
+        for (&[a, b, c, e], d) in self.quartic.keys.iter().zip(&self.quartic.values) {
+            let (a, b, c, e) = (a as usize, b as usize, c as usize, e as usize);
+            let s1 = d * dot(&u[a], &u[b]);
+            let s2 = d * dot(&u[c], &u[e]);
+            sub(&mut f[a], u[b], s2);
+            sub(&mut f[b], u[a], s2);
+            sub(&mut f[c], u[e], s1);
+            sub(&mut f[e], u[c], s1);
+        }
+    }
+
+    /// Elastic energy at positions `x` (J), from the stored terms.
+    #[must_use]
+    pub fn energy(&self, model: &TetModel, x: &[Vec3]) -> f64 {
+        let u: Vec<Vec3> = x
+            .iter()
+            .zip(&model.rest)
+            .map(|(p, r)| [p[0] - r[0], p[1] - r[1], p[2] - r[2]])
+            .collect();
+        let mut w = 0.0;
+        for (n, b) in self.vertex_b.iter().enumerate() {
+            w += dot(&u[n], &mul_vec(b, &u[n]));
+        }
+        for (&[lo, hi], m) in self.edge_vertices.iter().zip(&self.edge_b) {
+            w += dot(&u[lo as usize], &mul_vec(m, &u[hi as usize]));
+        }
+        for (&[j, k, l], c) in self.cubic.keys.iter().zip(&self.cubic.values) {
+            w += dot(&u[j as usize], c) * dot(&u[k as usize], &u[l as usize]);
+        }
+        for (&[a, b, c, e], d) in self.quartic.keys.iter().zip(&self.quartic.values) {
+            w += d * dot(&u[a as usize], &u[b as usize]) * dot(&u[c as usize], &u[e as usize]);
+        }
+        w
+    }
+}

@@ -1,0 +1,271 @@
+//! Vertices, edges, triangles and tetrahedra of a mesh with the neighbour relations the
+//! tensor-mass storage needs (paper 2 §3.2: "a data structure incorporating the notion of vertices,
+//! edges, triangles, and tetrahedra, with all the necessary neighbours"), and the boundary surface,
+//! kept current as tetrahedra are removed.
+
+use super::mesh::TetMesh;
+use std::collections::HashMap;
+
+/// The faces of tetrahedron `[v0, v1, v2, v3]`, face `f` opposite vertex `f`, each ordered so that
+/// its normal points out of a positively oriented tetrahedron.
+pub const FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
+
+/// The 6 edges of a tetrahedron as pairs of local vertices.
+pub const EDGES: [[usize; 2]; 6] = [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]];
+
+/// Mesh topology with live/removed tetrahedra.
+#[derive(Clone, Debug)]
+pub struct TetTopology {
+    vertex_count: usize,
+    tets: Vec<[u32; 4]>,
+    alive: Vec<bool>,
+    edges: Vec<[u32; 2]>,
+    triangles: Vec<[u32; 3]>,
+    tet_edges: Vec<[u32; 6]>,
+    tet_triangles: Vec<[u32; 4]>,
+    /// Live tetrahedra around each vertex, edge and triangle.
+    vertex_tets: Vec<u32>,
+    edge_tets: Vec<u32>,
+    triangle_tets: Vec<u32>,
+    /// Tetrahedra of each triangle (`u32::MAX` when fewer than two).
+    triangle_owners: Vec<[u32; 2]>,
+    live: usize,
+}
+
+fn sorted<const N: usize>(mut a: [u32; N]) -> [u32; N] {
+    a.sort_unstable();
+    a
+}
+
+impl TetTopology {
+    /// The topology of every tetrahedron of `mesh` (all live).
+    #[must_use]
+    pub fn new(mesh: &TetMesh) -> Self {
+        let tets = mesh.tets().to_vec();
+        let mut edge_id: HashMap<[u32; 2], u32> = HashMap::with_capacity(tets.len() * 2);
+        let mut tri_id: HashMap<[u32; 3], u32> = HashMap::with_capacity(tets.len() * 3);
+        let mut edges = Vec::new();
+        let mut triangles = Vec::new();
+        let mut triangle_owners: Vec<[u32; 2]> = Vec::new();
+        let mut tet_edges = Vec::with_capacity(tets.len());
+        let mut tet_triangles = Vec::with_capacity(tets.len());
+        for (t, v) in tets.iter().enumerate() {
+            tet_edges.push(EDGES.map(|[a, b]| {
+                let key = sorted([v[a], v[b]]);
+                *edge_id.entry(key).or_insert_with(|| {
+                    edges.push(key);
+                    (edges.len() - 1) as u32
+                })
+            }));
+            tet_triangles.push(FACES.map(|f| {
+                let key = sorted(f.map(|i| v[i]));
+                let id = *tri_id.entry(key).or_insert_with(|| {
+                    triangles.push(key);
+                    triangle_owners.push([u32::MAX; 2]);
+                    (triangles.len() - 1) as u32
+                });
+                let owners = &mut triangle_owners[id as usize];
+                if owners[0] == u32::MAX {
+                    owners[0] = t as u32;
+                } else {
+                    owners[1] = t as u32;
+                }
+                id
+            }));
+        }
+        let mut topo = Self {
+            vertex_count: mesh.vertices().len(),
+            alive: vec![true; tets.len()],
+            vertex_tets: vec![0; mesh.vertices().len()],
+            edge_tets: vec![0; edges.len()],
+            triangle_tets: vec![0; triangles.len()],
+            tets,
+            edges,
+            triangles,
+            tet_edges,
+            tet_triangles,
+            triangle_owners,
+            live: 0,
+        };
+        for t in 0..topo.tets.len() {
+            topo.count(t, 1);
+        }
+        topo.live = topo.tets.len();
+        topo
+    }
+
+    fn count(&mut self, t: usize, delta: i64) {
+        let apply = |c: &mut u32| *c = (i64::from(*c) + delta) as u32;
+        for &v in &self.tets[t] {
+            apply(&mut self.vertex_tets[v as usize]);
+        }
+        for &e in &self.tet_edges[t] {
+            apply(&mut self.edge_tets[e as usize]);
+        }
+        for &f in &self.tet_triangles[t] {
+            apply(&mut self.triangle_tets[f as usize]);
+        }
+    }
+
+    /// Removes tetrahedron `t`; false when it was already removed.
+    pub fn remove(&mut self, t: usize) -> bool {
+        if !self.alive[t] {
+            return false;
+        }
+        self.alive[t] = false;
+        self.count(t, -1);
+        self.live -= 1;
+        true
+    }
+
+    /// Vertices (all, including those no live tetrahedron uses any more).
+    #[must_use]
+    pub fn vertex_count(&self) -> usize {
+        self.vertex_count
+    }
+
+    /// All tetrahedra ever in the mesh (live or removed), by index.
+    #[must_use]
+    pub fn tets(&self) -> &[[u32; 4]] {
+        &self.tets
+    }
+
+    /// Whether tetrahedron `t` is live.
+    #[must_use]
+    pub fn is_alive(&self, t: usize) -> bool {
+        self.alive[t]
+    }
+
+    /// Live tetrahedra.
+    #[must_use]
+    pub fn live_count(&self) -> usize {
+        self.live
+    }
+
+    /// Edges as sorted vertex pairs.
+    #[must_use]
+    pub fn edges(&self) -> &[[u32; 2]] {
+        &self.edges
+    }
+
+    /// Triangles as sorted vertex triples.
+    #[must_use]
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// Edge ids of tetrahedron `t`, in [`EDGES`] order.
+    #[must_use]
+    pub fn tet_edges(&self, t: usize) -> &[u32; 6] {
+        &self.tet_edges[t]
+    }
+
+    /// Triangle ids of tetrahedron `t`, face `f` opposite vertex `f`.
+    #[must_use]
+    pub fn tet_triangles(&self, t: usize) -> &[u32; 4] {
+        &self.tet_triangles[t]
+    }
+
+    /// Live tetrahedra using vertex `v`.
+    #[must_use]
+    pub fn vertex_degree(&self, v: usize) -> u32 {
+        self.vertex_tets[v]
+    }
+
+    /// Live tetrahedra around edge `e`.
+    #[must_use]
+    pub fn edge_degree(&self, e: usize) -> u32 {
+        self.edge_tets[e]
+    }
+
+    /// Live tetrahedra on triangle `f` (0, 1 or 2).
+    #[must_use]
+    pub fn triangle_degree(&self, f: usize) -> u32 {
+        self.triangle_tets[f]
+    }
+
+    /// The live tetrahedron across face `f` of tetrahedron `t`, if any.
+    #[must_use]
+    pub fn neighbour(&self, t: usize, f: usize) -> Option<usize> {
+        let tri = self.tet_triangles[t][f] as usize;
+        self.triangle_owners[tri]
+            .iter()
+            .map(|&o| o as usize)
+            .find(|&o| o != u32::MAX as usize && o != t && self.alive[o])
+    }
+
+    /// The boundary surface: every face of a live tetrahedron with no live tetrahedron across it,
+    /// oriented outwards, in tetrahedron order.
+    #[must_use]
+    pub fn boundary(&self) -> Vec<[u32; 3]> {
+        let mut out = Vec::new();
+        for (t, v) in self.tets.iter().enumerate() {
+            if !self.alive[t] {
+                continue;
+            }
+            for (f, face) in FACES.iter().enumerate() {
+                if self.triangle_tets[self.tet_triangles[t][f] as usize] == 1 {
+                    out.push(face.map(|i| v[i]));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Checks that `surface` is closed and consistently oriented: every directed edge of a triangle
+/// is matched by the same edge in the opposite direction in another triangle. Returns the first
+/// unmatched directed edge.
+pub fn check_closed(surface: &[[u32; 3]]) -> Result<(), [u32; 2]> {
+    let mut balance: HashMap<[u32; 2], i64> = HashMap::new();
+    for tri in surface {
+        for i in 0..3 {
+            let (a, b) = (tri[i], tri[(i + 1) % 3]);
+            let (key, d) = if a < b { ([a, b], 1) } else { ([b, a], -1) };
+            *balance.entry(key).or_default() += d;
+        }
+    }
+    let mut bad: Vec<_> = balance.into_iter().filter(|(_, d)| *d != 0).map(|(k, _)| k).collect();
+    bad.sort_unstable();
+    bad.first().map_or(Ok(()), |&e| Err(e))
+}
+
+/// Edges of `surface` shared by more than two of its triangles: where two parts of the solid touch
+/// only along an edge (tetrahedra removed around it on two sides).
+#[must_use]
+pub fn non_manifold_edges(surface: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    let mut count: HashMap<[u32; 2], u32> = HashMap::new();
+    for tri in surface {
+        for i in 0..3 {
+            *count.entry(sorted([tri[i], tri[(i + 1) % 3]])).or_default() += 1;
+        }
+    }
+    let mut out: Vec<_> = count.into_iter().filter(|&(_, c)| c > 2).map(|(e, _)| e).collect();
+    out.sort_unstable();
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tet::generate::cylinder;
+
+    #[test]
+    fn counts_and_boundary_of_a_cylinder() {
+        let mesh = cylinder(1.0, 3.0, 4, 3);
+        let mut topo = TetTopology::new(&mesh);
+        let v = topo.vertex_count() as i64;
+        let e = topo.edges().len() as i64;
+        let f = topo.triangles().len() as i64;
+        let t = topo.tets().len() as i64;
+        // Euler characteristic of a ball: V − E + F − T = 1.
+        assert_eq!(v - e + f - t, 1);
+        let surface = topo.boundary();
+        assert!(check_closed(&surface).is_ok());
+        // Every boundary triangle faces outwards: its normal points away from the axis or along z.
+        let removed = (0..topo.tets().len()).step_by(7).filter(|&t| topo.remove(t)).count();
+        assert_eq!(topo.live_count(), topo.tets().len() - removed);
+        assert!(check_closed(&topo.boundary()).is_ok());
+        assert!(!topo.remove(0));
+    }
+}

@@ -1,0 +1,166 @@
+//! The tensor-mass family (paper 2) against known answers: the stored tensors give the same forces
+//! as a conventional element-by-element assembly, forces are minus the energy gradient, St
+//! Venant-Kirchhoff is invariant under rotation while the linear model is not (Fig. 3's point),
+//! and removing tetrahedra equals building the mesh without them.
+
+use incise_fem::tet::element::Elasticity;
+use incise_fem::tet::generate::{cylinder, from_volume};
+use incise_fem::tet::topology::{TetTopology, check_closed};
+use incise_fem::tet::{Lame, TensorMassForceField, TetMaterial, TetMesh, TetModel};
+use incise_grid::LabelVolume;
+use incise_math::Vec3;
+use incise_math::mat3::{axis_angle, mul_vec};
+use proptest::prelude::*;
+
+fn material(_: u32) -> TetMaterial {
+    TetMaterial { lame: Lame::from_young_poisson(3_000.0, 0.45), density: 1_000.0 }
+}
+
+/// Paper 2's cylinder shape (height 3 × radius), 1 cm radius.
+fn small_cylinder() -> (TetMesh, TetModel) {
+    let mesh = cylinder(0.01, 0.03, 4, 6);
+    let model = TetModel::new(&mesh, material);
+    (mesh, model)
+}
+
+/// A smooth large deformation: bend, twist and stretch of up to about half the size.
+fn deformed(rest: &[Vec3]) -> Vec<Vec3> {
+    rest.iter()
+        .map(|p| {
+            let z = p[2] / 0.03;
+            let r = axis_angle(&[0.0, 0.0, 1.0], 0.8 * z);
+            let q = mul_vec(&r, p);
+            [q[0] + 0.012 * z * z, q[1] - 0.004 * z, q[2] * (1.0 + 0.2 * z) + 0.001 * p[0] / 0.01]
+        })
+        .collect()
+}
+
+fn max_abs(f: &[Vec3]) -> f64 {
+    f.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()))
+}
+
+fn max_diff(a: &[Vec3], b: &[Vec3]) -> f64 {
+    a.iter().flatten().zip(b.iter().flatten()).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+}
+
+#[test]
+fn tensor_mass_forces_equal_the_element_assembly() {
+    let (mesh, model) = small_cylinder();
+    let topo = TetTopology::new(&mesh);
+    let x = deformed(&model.rest);
+    for (kind, tolerance) in [(Elasticity::Linear, 1e-12), (Elasticity::StVenantKirchhoff, 1e-10)] {
+        let tm = TensorMassForceField::new(&model, &topo, kind);
+        let mut a = vec![[0.0; 3]; model.vertex_count()];
+        tm.add_forces(&model, &x, &mut a);
+        let mut b = vec![[0.0; 3]; model.vertex_count()];
+        model.add_forces(|_| true, &x, kind, &mut b);
+        let rel = max_diff(&a, &b) / max_abs(&b);
+        println!("{kind:?}: tensor-mass vs element assembly, max relative difference {rel:.2e}");
+        assert!(rel <= tolerance, "{kind:?}: {rel:e}");
+        let (wa, wb) = (tm.energy(&model, &x), model.energy(|_| true, &x, kind));
+        assert!((wa - wb).abs() <= tolerance * wb.abs(), "{kind:?} energy {wa} vs {wb}");
+    }
+}
+
+#[test]
+fn forces_are_minus_the_energy_gradient() {
+    // Central differences with step h = 1e-6 m (1e-4 of the radius): truncation O(h²) ~ 1e-8 of
+    // the force scale; rounding ε·Σ|terms|/h, where the stored SVK terms cancel each other
+    // heavily at large displacement (their sum is ~1e3 times the energy), ~1e-8 of it too. So
+    // 1e-6 relative to the largest force is a real check (a wrong coefficient is off by ~1e-1).
+    let (mesh, model) = small_cylinder();
+    let topo = TetTopology::new(&mesh);
+    let x = deformed(&model.rest);
+    let h = 1e-6;
+    for kind in [Elasticity::Linear, Elasticity::StVenantKirchhoff] {
+        let tm = TensorMassForceField::new(&model, &topo, kind);
+        let mut f = vec![[0.0; 3]; model.vertex_count()];
+        tm.add_forces(&model, &x, &mut f);
+        let scale = max_abs(&f);
+        for n in (0..model.vertex_count()).step_by(13) {
+            for k in 0..3 {
+                let mut xp = x.clone();
+                xp[n][k] += h;
+                let mut xm = x.clone();
+                xm[n][k] -= h;
+                let fd = -(tm.energy(&model, &xp) - tm.energy(&model, &xm)) / (2.0 * h);
+                assert!(
+                    (fd - f[n][k]).abs() <= 1e-6 * scale,
+                    "{kind:?} node {n} axis {k}: {fd} vs {}",
+                    f[n][k]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn svk_is_rotation_invariant_and_the_linear_model_is_not() {
+    let (mesh, model) = small_cylinder();
+    let topo = TetTopology::new(&mesh);
+    // The force scale: a 10 % stretch.
+    let stretched: Vec<Vec3> = model.rest.iter().map(|p| [p[0], p[1], 1.1 * p[2]]).collect();
+    println!("rotation (deg) | linear |f| / |f(10 % stretch)| | SVK");
+    for degrees in [10.0f64, 45.0, 90.0] {
+        let r = axis_angle(&[1.0, 0.0, 0.0], degrees.to_radians());
+        let rotated: Vec<Vec3> = model.rest.iter().map(|p| mul_vec(&r, p)).collect();
+        let mut ratios = [0.0; 2];
+        for (i, kind) in [Elasticity::Linear, Elasticity::StVenantKirchhoff].into_iter().enumerate()
+        {
+            let tm = TensorMassForceField::new(&model, &topo, kind);
+            let mut reference = vec![[0.0; 3]; model.vertex_count()];
+            tm.add_forces(&model, &stretched, &mut reference);
+            let mut f = vec![[0.0; 3]; model.vertex_count()];
+            tm.add_forces(&model, &rotated, &mut f);
+            ratios[i] = max_abs(&f) / max_abs(&reference);
+        }
+        println!("{degrees:>14} | {:>34.3} | {:.1e}", ratios[0], ratios[1]);
+        // SVK: zero to rounding (the displacement is of the order of the size, forces cancel).
+        assert!(ratios[1] < 1e-9, "SVK under a rigid rotation: {}", ratios[1]);
+        // Linear: a rigid rotation strains it like a stretch of comparable size.
+        assert!(ratios[0] > 0.05, "linear under a rigid rotation: {}", ratios[0]);
+    }
+}
+
+/// A random label volume (foreground where `bits` says) tetrahedralised at level 0.
+fn random_mesh(dims: [usize; 3], bits: &[bool]) -> Option<TetMesh> {
+    let labels: Vec<u16> = bits.iter().map(|&b| u16::from(b)).collect();
+    let v = LabelVolume::new(dims, [0.01; 3], labels).ok()?;
+    from_volume(&v, 0).ok()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    #[test]
+    fn removing_tetrahedra_equals_building_without_them(
+        bits in proptest::collection::vec(prop::bool::weighted(0.8), 27),
+        order in proptest::collection::vec(any::<prop::sample::Index>(), 1..40),
+        svk in any::<bool>(),
+    ) {
+        let Some(mesh) = random_mesh([3, 3, 3], &bits) else { return Ok(()) };
+        let kind = if svk { Elasticity::StVenantKirchhoff } else { Elasticity::Linear };
+        let model = TetModel::new(&mesh, material);
+        let mut topo = TetTopology::new(&mesh);
+        let mut tm = TensorMassForceField::new(&model, &topo, kind);
+        let x: Vec<Vec3> = model.rest.iter().enumerate()
+            .map(|(i, p)| [p[0] + 0.002 * ((i % 5) as f64 - 2.0), p[1] * 1.1, p[2] - 0.003 * ((i % 3) as f64)])
+            .collect();
+        for idx in &order {
+            let t = idx.index(mesh.tets().len());
+            tm.remove_tet(&model, &mut topo, t);
+            prop_assert!(check_closed(&topo.boundary()).is_ok());
+        }
+        let fresh = TensorMassForceField::new(&model, &topo, kind);
+        let mut a = vec![[0.0; 3]; model.vertex_count()];
+        tm.add_forces(&model, &x, &mut a);
+        let mut b = vec![[0.0; 3]; model.vertex_count()];
+        fresh.add_forces(&model, &x, &mut b);
+        let mut c = vec![[0.0; 3]; model.vertex_count()];
+        model.add_forces(|t| topo.is_alive(t), &x, kind, &mut c);
+        let scale = max_abs(&c).max(f64::MIN_POSITIVE);
+        // Subtraction leaves rounding of the removed terms' size: 1e-12 of the force scale.
+        prop_assert!(max_diff(&a, &b) <= 1e-12 * scale, "{} vs {}", max_diff(&a, &b), scale);
+        prop_assert!(max_diff(&a, &c) <= 1e-10 * scale, "{} vs {}", max_diff(&a, &c), scale);
+    }
+}

@@ -114,7 +114,10 @@ pub fn from_volume(volume: &LabelVolume, level: u32) -> Result<TetMesh, TetMeshE
 /// If `across` is odd or zero, or `layers` is zero.
 #[must_use]
 pub fn cylinder(radius: f64, height: f64, across: usize, layers: usize) -> TetMesh {
-    assert!(across > 0 && across.is_multiple_of(2), "the cylinder needs an even number of cells across");
+    assert!(
+        across > 0 && across.is_multiple_of(2),
+        "the cylinder needs an even number of cells across"
+    );
     assert!(layers > 0, "the cylinder needs at least one layer");
     lattice_to_tets(
         [across, across, layers],

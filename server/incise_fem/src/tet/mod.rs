@@ -5,7 +5,9 @@
 //! exactly what it added.
 
 pub mod element;
+pub mod explicit;
 pub mod generate;
+pub mod incompressible;
 pub mod mesh;
 pub mod tensor_mass;
 pub mod topology;

@@ -290,6 +290,24 @@ impl TensorMassForceField {
         }
     }
 
+    /// `out += K₀ v`: the rest (linear) stiffness, from the vertex and edge tensors alone.
+    pub fn add_rest_stiffness_times(&self, v: &[Vec3], out: &mut [Vec3]) {
+        for (n, b) in self.vertex_b.iter().enumerate() {
+            let kv = mul_vec(b, &v[n]);
+            for k in 0..3 {
+                out[n][k] += 2.0 * kv[k];
+            }
+        }
+        for (&[lo, hi], m) in self.edge_vertices.iter().zip(&self.edge_b) {
+            let (lo, hi) = (lo as usize, hi as usize);
+            let (a, b) = (mul_vec(m, &v[hi]), mul_transpose_vec(m, &v[lo]));
+            for k in 0..3 {
+                out[lo][k] += a[k];
+                out[hi][k] += b[k];
+            }
+        }
+    }
+
     /// Elastic energy at positions `x` (J), from the stored terms.
     #[must_use]
     pub fn energy(&self, model: &TetModel, x: &[Vec3]) -> f64 {

@@ -1,0 +1,64 @@
+//! The incompressibility penalty of paper 2 §4: each vertex of a tetrahedron is pushed along the
+//! normal of its opposite face with a magnitude growing as the square of the relative volume
+//! change, `F_p ∝ ((V − V₀)/V₀)² N_p`, outwards when the tetrahedron is compressed and inwards when
+//! it is stretched ("a pressure increase inside the tetrahedron").
+//!
+//! Written as `F_p = −κ sign(V − V₀) ((V − V₀)/V₀)² ∂V/∂x_p` (`∂V/∂x_p` is a third of the opposite
+//! face's area vector, pointing at `p`), it is the force of the energy `κ V₀ |V/V₀ − 1|³ / 3`, so it
+//! is conservative and the explicit integrator's energy stays bounded. `κ` (Pa) sets its strength.
+
+use super::element::TetModel;
+use incise_math::Vec3;
+use incise_math::mat3::cross;
+
+/// `∂V/∂x_p` for the four vertices of the tetrahedron `p`.
+#[must_use]
+pub fn volume_gradient(p: &[Vec3; 4]) -> [Vec3; 4] {
+    let d = |a: usize, b: usize| -> Vec3 { std::array::from_fn(|k| p[b][k] - p[a][k]) };
+    let g1 = cross(&d(0, 2), &d(0, 3)).map(|x| x / 6.0);
+    let g2 = cross(&d(0, 3), &d(0, 1)).map(|x| x / 6.0);
+    let g3 = cross(&d(0, 1), &d(0, 2)).map(|x| x / 6.0);
+    let g0 = std::array::from_fn(|k| -g1[k] - g2[k] - g3[k]);
+    [g0, g1, g2, g3]
+}
+
+/// The penalty with strength `kappa` (Pa) on every live tetrahedron.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Incompressibility {
+    /// Strength κ (Pa).
+    pub kappa: f64,
+}
+
+impl Incompressibility {
+    /// `f += penalty forces` over the tetrahedra `live(t)` accepts.
+    pub fn add_forces(
+        &self,
+        model: &TetModel,
+        live: impl Fn(usize) -> bool,
+        x: &[Vec3],
+        f: &mut [Vec3],
+    ) {
+        for t in (0..model.tets.len()).filter(|&t| live(t)) {
+            let p = model.tets[t].map(|n| x[n as usize]);
+            let delta = model.current_volume(t, x) / model.volume[t] - 1.0;
+            let scale = -self.kappa * delta * delta.abs();
+            for (g, &n) in volume_gradient(&p).iter().zip(&model.tets[t]) {
+                for k in 0..3 {
+                    f[n as usize][k] += scale * g[k];
+                }
+            }
+        }
+    }
+
+    /// The penalty's energy `Σ κ V₀ |V/V₀ − 1|³ / 3` (J).
+    #[must_use]
+    pub fn energy(&self, model: &TetModel, live: impl Fn(usize) -> bool, x: &[Vec3]) -> f64 {
+        (0..model.tets.len())
+            .filter(|&t| live(t))
+            .map(|t| {
+                let delta = (model.current_volume(t, x) / model.volume[t] - 1.0).abs();
+                self.kappa * model.volume[t] * delta * delta * delta / 3.0
+            })
+            .sum()
+    }
+}

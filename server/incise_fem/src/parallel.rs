@@ -105,3 +105,13 @@ pub(crate) fn map_elements<T: Send + Default + Clone>(
     fill_elements(&mut out, f);
     out
 }
+
+/// `(a(), b())`, on two threads when `parallel` and more than one thread is allowed. The caller
+/// makes the results independent of which thread ran what.
+pub(crate) fn join_if<A: Send, B: Send>(
+    parallel: bool,
+    a: impl FnOnce() -> A + Send,
+    b: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    if parallel && threads() > 1 { pool().join(a, b) } else { (a(), b()) }
+}

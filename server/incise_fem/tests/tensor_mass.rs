@@ -4,6 +4,7 @@
 //! and removing tetrahedra equals building the mesh without them.
 
 use incise_fem::tet::element::Elasticity;
+use incise_fem::tet::element::Fibre;
 use incise_fem::tet::generate::{cylinder, from_volume};
 use incise_fem::tet::topology::{TetTopology, check_closed};
 use incise_fem::tet::{Lame, TensorMassForceField, TetMaterial, TetMesh, TetModel};
@@ -13,7 +14,7 @@ use incise_math::mat3::{axis_angle, mul_vec};
 use proptest::prelude::*;
 
 fn material(_: u32) -> TetMaterial {
-    TetMaterial { lame: Lame::from_young_poisson(3_000.0, 0.45), density: 1_000.0 }
+    TetMaterial::isotropic(Lame::from_young_poisson(3_000.0, 0.45), 1_000.0)
 }
 
 /// Paper 2's cylinder shape (height 3 × radius), 1 cm radius.
@@ -43,19 +44,41 @@ fn max_diff(a: &[Vec3], b: &[Vec3]) -> f64 {
     a.iter().flatten().zip(b.iter().flatten()).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
 }
 
+/// Fibres along z, four times stiffer along them than across.
+fn fibred(_: u32) -> TetMaterial {
+    let lame = Lame::from_young_poisson(3_000.0, 0.45);
+    TetMaterial {
+        fibre: Some(Fibre {
+            direction: [0.2, 0.0, 1.0],
+            lame_along: Lame { lambda: 4.0 * lame.lambda, mu: 4.0 * lame.mu },
+        }),
+        ..material(0)
+    }
+}
+
 #[test]
 fn tensor_mass_forces_equal_the_element_assembly() {
-    let (mesh, model) = small_cylinder();
+    let (mesh, isotropic) = small_cylinder();
     let topo = TetTopology::new(&mesh);
-    let x = deformed(&model.rest);
-    for (kind, tolerance) in [(Elasticity::Linear, 1e-12), (Elasticity::StVenantKirchhoff, 1e-10)] {
+    let x = deformed(&isotropic.rest);
+    let transverse = TetModel::new(&mesh, fibred);
+    for (model, kind, tolerance) in [
+        (&isotropic, Elasticity::Linear, 1e-12),
+        (&isotropic, Elasticity::StVenantKirchhoff, 1e-10),
+        (&transverse, Elasticity::Linear, 1e-12),
+        (&transverse, Elasticity::StVenantKirchhoff, 1e-10),
+    ] {
+        let model = model.clone();
         let tm = TensorMassForceField::new(&model, &topo, kind);
         let mut a = vec![[0.0; 3]; model.vertex_count()];
         tm.add_forces(&model, &x, &mut a);
         let mut b = vec![[0.0; 3]; model.vertex_count()];
         model.add_forces(|_| true, &x, kind, &mut b);
         let rel = max_diff(&a, &b) / max_abs(&b);
-        println!("{kind:?}: tensor-mass vs element assembly, max relative difference {rel:.2e}");
+        let fibre = if model.fibre[0].is_some() { " (transversely isotropic)" } else { "" };
+        println!(
+            "{kind:?}{fibre}: tensor-mass vs element assembly, max relative difference {rel:.2e}"
+        );
         assert!(rel <= tolerance, "{kind:?}: {rel:e}");
         let (wa, wb) = (tm.energy(&model, &x), model.energy(|_| true, &x, kind));
         assert!((wa - wb).abs() <= tolerance * wb.abs(), "{kind:?} energy {wa} vs {wb}");
@@ -64,26 +87,59 @@ fn tensor_mass_forces_equal_the_element_assembly() {
 
 #[test]
 fn forces_are_minus_the_energy_gradient() {
-    // Central differences with step h = 1e-6 m (1e-4 of the radius): truncation O(h²) ~ 1e-8 of
-    // the force scale; rounding ε·Σ|terms|/h, where the stored SVK terms cancel each other
-    // heavily at large displacement (their sum is ~1e3 times the energy), ~1e-8 of it too. So
-    // 1e-6 relative to the largest force is a real check (a wrong coefficient is off by ~1e-1).
+    // Central differences with step h = 1e-7 m: truncation O((h/ℓ)²) with elements ℓ ≈ 2.5 mm,
+    // ~1e-9 relative (measured: the error scales as h², 1.4e-6 at h = 1e-6); rounding ε·Σ|terms|/h,
+    // where the stored SVK terms cancel heavily at large displacement (their sum is ~1e3 times the
+    // energy), ~1e-8. So 1e-6 relative to the largest entry is a real check (a wrong coefficient
+    // is off by ~1e-1).
     let (mesh, model) = small_cylinder();
     let topo = TetTopology::new(&mesh);
     let x = deformed(&model.rest);
-    let h = 1e-6;
-    for kind in [Elasticity::Linear, Elasticity::StVenantKirchhoff] {
-        let tm = TensorMassForceField::new(&model, &topo, kind);
+    let h = 1e-7;
+    let transverse = TetModel::new(&mesh, fibred);
+    for (model, kind) in [
+        (&model, Elasticity::Linear),
+        (&model, Elasticity::StVenantKirchhoff),
+        (&transverse, Elasticity::StVenantKirchhoff),
+    ] {
+        let tm = TensorMassForceField::new(model, &topo, kind);
         let mut f = vec![[0.0; 3]; model.vertex_count()];
-        tm.add_forces(&model, &x, &mut f);
+        tm.add_forces(model, &x, &mut f);
         let scale = max_abs(&f);
+        // The tangent stiffness is the Jacobian of the forces: K v = −(f(x + hv) − f(x − hv))/2h,
+        // same step and tolerance (relative to the largest entry of K v).
+        let dir: Vec<Vec3> = (0..model.vertex_count())
+            .map(|i| {
+                [((i % 7) as f64 - 3.0) / 3.0, ((i % 5) as f64 - 2.0) / 2.0, 1.0 - (i % 3) as f64]
+            })
+            .collect();
+        let mut kv = vec![[0.0; 3]; model.vertex_count()];
+        tm.add_stiffness_times(model, &x, &dir, &mut kv);
+        let shifted = |s: f64| -> Vec<Vec3> {
+            let xs: Vec<Vec3> =
+                x.iter().zip(&dir).map(|(p, d)| std::array::from_fn(|k| p[k] + s * d[k])).collect();
+            let mut g = vec![[0.0; 3]; model.vertex_count()];
+            tm.add_forces(model, &xs, &mut g);
+            g
+        };
+        let (fp, fm) = (shifted(h), shifted(-h));
+        let fd: Vec<Vec3> = fp
+            .iter()
+            .zip(&fm)
+            .map(|(a, b)| std::array::from_fn(|k| -(a[k] - b[k]) / (2.0 * h)))
+            .collect();
+        let rel = max_diff(&kv, &fd) / max_abs(&kv);
+        println!(
+            "{kind:?}: stiffness vs finite differences of the forces, max relative difference {rel:.1e}"
+        );
+        assert!(rel <= 1e-6, "{kind:?}: {rel:e}");
         for n in (0..model.vertex_count()).step_by(13) {
             for k in 0..3 {
                 let mut xp = x.clone();
                 xp[n][k] += h;
                 let mut xm = x.clone();
                 xm[n][k] -= h;
-                let fd = -(tm.energy(&model, &xp) - tm.energy(&model, &xm)) / (2.0 * h);
+                let fd = -(tm.energy(model, &xp) - tm.energy(model, &xm)) / (2.0 * h);
                 assert!(
                     (fd - f[n][k]).abs() <= 1e-6 * scale,
                     "{kind:?} node {n} axis {k}: {fd} vs {}",
@@ -130,7 +186,7 @@ fn random_mesh(dims: [usize; 3], bits: &[bool]) -> Option<TetMesh> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 24, failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
     fn removing_tetrahedra_equals_building_without_them(
@@ -265,5 +321,75 @@ mod explicit {
                 );
             }
         }
+    }
+}
+
+mod adaptive {
+    use super::*;
+
+    fn forces(tm: &TensorMassForceField, model: &TetModel, x: &[Vec3]) -> Vec<u64> {
+        let mut f = vec![[0.0; 3]; model.vertex_count()];
+        tm.add_forces(model, x, &mut f);
+        f.iter().flatten().map(|v| v.to_bits()).collect()
+    }
+
+    #[test]
+    fn thresholds_at_the_limits_give_the_full_models() {
+        let (mesh, model) = small_cylinder();
+        let topo = TetTopology::new(&mesh);
+        let x = deformed(&model.rest);
+        let svk = TensorMassForceField::new(&model, &topo, Elasticity::StVenantKirchhoff);
+        let linear = TensorMassForceField::new(&model, &topo, Elasticity::Linear);
+        let mut all = svk.clone();
+        all.enable_adaptive(0.0, 0.1);
+        assert_eq!(all.update_adaptive(&model, &x), model.vertex_count() - fixed_count(&model, &x));
+        let mut none = svk.clone();
+        none.enable_adaptive(1.0, 0.1);
+        assert_eq!(none.update_adaptive(&model, &x), 0);
+        assert_eq!(none.nonlinear_count(), 0);
+        // Vertices that do not move stay linear even at threshold 0, and a term with only such
+        // vertices contributes nothing anyway: the forces are SVK's, bit for bit.
+        assert_eq!(forces(&all, &model, &x), forces(&svk, &model, &x));
+        assert_eq!(forces(&none, &model, &x), forces(&linear, &model, &x));
+    }
+
+    /// Vertices of `x` that have not moved (the deformation fixes the base's centre).
+    fn fixed_count(model: &TetModel, x: &[Vec3]) -> usize {
+        x.iter().zip(&model.rest).filter(|(p, r)| (0..3).all(|k| p[k].to_bits() == r[k].to_bits())).count()
+    }
+
+    #[test]
+    fn hysteresis_keeps_a_vertex_from_flickering() {
+        let (mesh, model) = small_cylinder();
+        let topo = TetTopology::new(&mesh);
+        let mut tm = TensorMassForceField::new(&model, &topo, Elasticity::StVenantKirchhoff);
+        tm.enable_adaptive(1e-3, 0.2);
+        let at = |d: f64| -> Vec<Vec3> {
+            let mut x = model.rest.clone();
+            x[5][0] += d;
+            x
+        };
+        assert_eq!(tm.update_adaptive(&model, &at(0.9e-3)), 0, "below the threshold: linear");
+        assert_eq!(tm.update_adaptive(&model, &at(1.1e-3)), 1, "above: non-linear");
+        assert_eq!(tm.update_adaptive(&model, &at(0.9e-3)), 1, "inside the band: stays non-linear");
+        assert_eq!(tm.update_adaptive(&model, &at(0.7e-3)), 0, "below 80 %: linear again");
+    }
+
+    #[test]
+    fn results_do_not_depend_on_the_thread_count() {
+        // Large enough for the two-thread path (≥ 20,000 cubic and quartic terms).
+        let mesh = cylinder(0.01, 0.03, 6, 9);
+        let model = TetModel::new(&mesh, material);
+        let topo = TetTopology::new(&mesh);
+        let tm = TensorMassForceField::new(&model, &topo, Elasticity::StVenantKirchhoff);
+        let (_, _, cubic, quartic) = tm.term_counts();
+        assert!(cubic + quartic >= 20_000, "{cubic} + {quartic}");
+        let x = deformed(&model.rest);
+        incise_fem::set_thread_override(Some(1));
+        let one = forces(&tm, &model, &x);
+        incise_fem::set_thread_override(Some(2));
+        let two = forces(&tm, &model, &x);
+        incise_fem::set_thread_override(None);
+        assert_eq!(one, two);
     }
 }

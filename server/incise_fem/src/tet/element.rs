@@ -38,13 +38,44 @@ pub enum Elasticity {
     StVenantKirchhoff,
 }
 
-/// A tissue for a region: Lamé coefficients and density (kg/m³).
+/// A tissue for a region: Lamé coefficients, density (kg/m³) and an optional fibre direction.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TetMaterial {
-    /// Lamé coefficients.
+    /// Lamé coefficients (in the plane of isotropy when there is a fibre).
     pub lame: Lame,
     /// Density (kg/m³).
     pub density: f64,
+    /// Transverse isotropy: stiffer (or softer) along a fibre direction.
+    pub fibre: Option<Fibre>,
+}
+
+impl TetMaterial {
+    /// An isotropic tissue.
+    #[must_use]
+    pub fn isotropic(lame: Lame, density: f64) -> Self {
+        Self { lame, density, fibre: None }
+    }
+}
+
+/// A fibre direction `a₀` and the Lamé coefficients `λᴸ, μᴸ` along it (paper 2 §3: the energy gains
+/// `((λᴸ − λ)/2 + μᴸ − μ) (a₀ᵀ E a₀)²`, penalising stretch along the fibre).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fibre {
+    /// Fibre direction (normalised when the model is built).
+    pub direction: Vec3,
+    /// Lamé coefficients along the fibre.
+    pub lame_along: Lame,
+}
+
+impl Fibre {
+    /// The unit direction and the coefficient `κ = (λᴸ − λ)/2 + μᴸ − μ` of `(a₀ᵀ E a₀)²`.
+    #[must_use]
+    pub fn term(&self, lame: Lame) -> (Vec3, f64) {
+        let d = self.direction;
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let unit = if n > 0.0 { d.map(|x| x / n) } else { [0.0, 0.0, 1.0] };
+        (unit, 0.5 * (self.lame_along.lambda - lame.lambda) + self.lame_along.mu - lame.mu)
+    }
 }
 
 /// Rest data of every tetrahedron.
@@ -62,6 +93,10 @@ pub struct TetModel {
     pub lame: Vec<Lame>,
     /// Lumped mass per vertex (kg): a quarter of each tetrahedron's mass.
     pub lumped_mass: Vec<f64>,
+    /// Per tetrahedron, its unit fibre direction `a₀` and coefficient `κ` (see [`Fibre::term`]);
+    /// set per region by the material, and may be overwritten per tetrahedron before the force
+    /// field is built.
+    pub fibre: Vec<Option<(Vec3, f64)>>,
 }
 
 /// `∇Λⱼ` of the tetrahedron `p`: rows of the inverse edge matrix, `α₀ = −α₁ − α₂ − α₃`.
@@ -87,6 +122,7 @@ impl TetModel {
         let mut shape = Vec::with_capacity(mesh.tets().len());
         let mut volume = Vec::with_capacity(mesh.tets().len());
         let mut lame = Vec::with_capacity(mesh.tets().len());
+        let mut fibre = Vec::with_capacity(mesh.tets().len());
         for (t, nodes) in mesh.tets().iter().enumerate() {
             let p = mesh.tet_positions(t);
             let v = signed_volume(&p);
@@ -97,6 +133,7 @@ impl TetModel {
             shape.push(shape_vectors(&p));
             volume.push(v);
             lame.push(m.lame);
+            fibre.push(m.fibre.map(|f| f.term(m.lame)));
         }
         Self {
             rest: mesh.vertices().to_vec(),
@@ -105,6 +142,7 @@ impl TetModel {
             volume,
             lame,
             lumped_mass,
+            fibre,
         }
     }
 
@@ -153,7 +191,11 @@ impl TetModel {
         let tr = e[0][0] + e[1][1] + e[2][2];
         let tr2: f64 =
             (0..3).flat_map(|r| (0..3).map(move |c| (r, c))).map(|(r, c)| e[r][c] * e[c][r]).sum();
-        self.volume[t] * (0.5 * lambda * tr * tr + mu * tr2)
+        let along = self.fibre[t].map_or(0.0, |(a, kappa)| {
+            let ea = fibre_strain(&e, &a);
+            kappa * ea * ea
+        });
+        self.volume[t] * (0.5 * lambda * tr * tr + mu * tr2 + along)
     }
 
     /// Elastic forces of tetrahedron `t` on its 4 vertices (N).
@@ -165,6 +207,15 @@ impl TetModel {
         let mut s: Mat3 = std::array::from_fn(|r| std::array::from_fn(|c| 2.0 * mu * e[r][c]));
         for k in 0..3 {
             s[k][k] += lambda * tr;
+        }
+        // ∂/∂E of κ (a₀ᵀEa₀)² = 2κ (a₀ᵀEa₀) a₀ ⊗ a₀.
+        if let Some((a, kappa)) = self.fibre[t] {
+            let w = 2.0 * kappa * fibre_strain(&e, &a);
+            for r in 0..3 {
+                for c in 0..3 {
+                    s[r][c] += w * a[r] * a[c];
+                }
+            }
         }
         // First Piola-Kirchhoff stress: P = F S (SVK), σ (linear).
         let p = match kind {
@@ -209,6 +260,11 @@ impl TetModel {
     pub fn current_volume(&self, t: usize, x: &[Vec3]) -> f64 {
         signed_volume(&self.tets[t].map(|n| x[n as usize]))
     }
+}
+
+/// `a₀ᵀ E a₀`.
+fn fibre_strain(e: &Mat3, a: &Vec3) -> f64 {
+    (0..3).map(|r| a[r] * (0..3).map(|c| e[r][c] * a[c]).sum::<f64>()).sum()
 }
 
 #[cfg(test)]

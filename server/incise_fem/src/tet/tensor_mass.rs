@@ -45,11 +45,17 @@ fn tet_terms(model: &TetModel, topo: &TetTopology, t: usize, kind: Elasticity) -
     let (lambda, mu) = (model.lame[t].lambda, model.lame[t].mu);
     let g = model.tets[t];
     let s: [[f64; 4]; 4] = std::array::from_fn(|j| std::array::from_fn(|k| dot(&a[j], &a[k])));
+    // Transverse isotropy (paper 2 §3): κ (a₀ᵀEa₀)² with βⱼ = αⱼ · a₀ adds V₀κ βⱼβₖ a₀ ⊗ a₀ to
+    // Bⱼₖ, V₀κ βⱼβₖβₗ a₀ to Cⱼₖₗ and V₀κ/4 βⱼβₖβₗβₘ to Dⱼₖₗₘ.
+    let (a0, kappa) = model.fibre[t].unwrap_or(([0.0; 3], 0.0));
+    let beta: [f64; 4] = std::array::from_fn(|j| dot(&a[j], &a0));
     let b = |j: usize, k: usize| -> Mat3 {
         std::array::from_fn(|r| {
             std::array::from_fn(|c| {
                 let delta = if r == c { s[j][k] } else { 0.0 };
-                v * (0.5 * lambda * a[j][r] * a[k][c] + 0.5 * mu * (a[k][r] * a[j][c] + delta))
+                v * (0.5 * lambda * a[j][r] * a[k][c]
+                    + 0.5 * mu * (a[k][r] * a[j][c] + delta)
+                    + kappa * beta[j] * beta[k] * a0[r] * a0[c])
             })
         })
     };
@@ -71,7 +77,8 @@ fn tet_terms(model: &TetModel, topo: &TetTopology, t: usize, kind: Elasticity) -
             for l in 0..4 {
                 let c: Vec3 = std::array::from_fn(|r| {
                     v * (0.5 * lambda * a[j][r] * s[k][l]
-                        + 0.5 * mu * (a[l][r] * s[j][k] + a[k][r] * s[j][l]))
+                        + 0.5 * mu * (a[l][r] * s[j][k] + a[k][r] * s[j][l])
+                        + kappa * beta[j] * beta[k] * beta[l] * a0[r])
                 });
                 let [lo, hi] = sorted2(g[k], g[l]);
                 let entry = out.cubic.entry([g[j], lo, hi]).or_insert([0.0; 3]);
@@ -79,8 +86,10 @@ fn tet_terms(model: &TetModel, topo: &TetTopology, t: usize, kind: Elasticity) -
                     entry[r] += c[r];
                 }
                 for m in 0..4 {
-                    let d =
-                        v * (0.125 * lambda * s[j][k] * s[l][m] + 0.25 * mu * s[k][l] * s[j][m]);
+                    let d = v
+                        * (0.125 * lambda * s[j][k] * s[l][m]
+                            + 0.25 * mu * s[k][l] * s[j][m]
+                            + 0.25 * kappa * beta[j] * beta[k] * beta[l] * beta[m]);
                     let (p, q) = (sorted2(g[j], g[k]), sorted2(g[l], g[m]));
                     let (first, second) = if p <= q { (p, q) } else { (q, p) };
                     *out.quartic
@@ -154,6 +163,28 @@ pub struct TensorMassForceField {
     edge_vertices: Vec<[u32; 2]>,
     cubic: TermTable<3, Vec3>,
     quartic: TermTable<4, f64>,
+    /// Adaptive non-linearity: (threshold, hysteresis) and the per-vertex flags.
+    adaptive: Option<(f64, f64)>,
+    nonlinear: Option<Vec<bool>>,
+}
+
+/// The term tables are evaluated in this many fixed parts (each into its own buffer, summed in
+/// order), whatever the number of threads.
+const PARTS: usize = 2;
+
+/// Below this many cubic and quartic terms one thread does both parts (a thread hand-off costs
+/// more than half the work).
+const PARALLEL_TERMS: usize = 20_000;
+
+/// Indices of part `part` of `0..n`.
+fn part_range(n: usize, part: usize) -> std::ops::Range<usize> {
+    let size = n.div_ceil(PARTS);
+    (part * size).min(n)..((part + 1) * size).min(n)
+}
+
+/// `x − rest` per vertex.
+fn displacements(model: &TetModel, x: &[Vec3]) -> Vec<Vec3> {
+    x.iter().zip(&model.rest).map(|(p, r)| [p[0] - r[0], p[1] - r[1], p[2] - r[2]]).collect()
 }
 
 fn add3(a: &mut Mat3, b: &Mat3, sign: f64) {
@@ -200,6 +231,8 @@ impl TensorMassForceField {
             edge_vertices: topo.edges().to_vec(),
             cubic: TermTable::build(cubic),
             quartic: TermTable::build(quartic),
+            adaptive: None,
+            nonlinear: None,
         }
     }
 
@@ -249,44 +282,181 @@ impl TensorMassForceField {
         (self.vertex_b.len(), self.edge_b.len(), self.cubic.keys.len(), self.quartic.keys.len())
     }
 
-    /// `f += elastic forces` at positions `x` (rest positions from `model`).
+    /// `f += elastic forces` at positions `x` (rest positions from `model`). With adaptive
+    /// non-linearity on, a cubic or quartic term counts only where one of its vertices is
+    /// non-linear ([`TensorMassForceField::update_adaptive`]).
     pub fn add_forces(&self, model: &TetModel, x: &[Vec3], f: &mut [Vec3]) {
-        let u: Vec<Vec3> = x
-            .iter()
-            .zip(&model.rest)
-            .map(|(p, r)| [p[0] - r[0], p[1] - r[1], p[2] - r[2]])
-            .collect();
+        let u = displacements(model, x);
+        self.chunked(f, |part, out| self.force_part(&u, part, out));
+    }
+
+    /// `out += K(x) v`, the tangent stiffness `−∂f/∂x` at positions `x` times `v` (the same
+    /// terms as [`TensorMassForceField::add_forces`]).
+    pub fn add_stiffness_times(&self, model: &TetModel, x: &[Vec3], v: &[Vec3], out: &mut [Vec3]) {
+        let u = displacements(model, x);
+        self.chunked(out, |part, buf| self.stiffness_part(&u, v, part, buf));
+    }
+
+    /// Runs `work(part, buffer)` for the [`PARTS`] fixed parts of the term tables, on two
+    /// threads when the mesh is large enough, and adds the buffers to `out` in part order: the
+    /// sums do not depend on the thread count.
+    fn chunked(&self, out: &mut [Vec3], work: impl Fn(usize, &mut [Vec3]) + Sync) {
+        let n = out.len();
+        let mut first = vec![[0.0; 3]; n];
+        let mut second = vec![[0.0; 3]; n];
+        let terms = self.cubic.keys.len() + self.quartic.keys.len();
+        crate::parallel::join_if(
+            terms >= PARALLEL_TERMS,
+            || work(0, &mut first),
+            || work(1, &mut second),
+        );
+        for ((o, a), b) in out.iter_mut().zip(&first).zip(&second) {
+            for k in 0..3 {
+                o[k] += a[k] + b[k];
+            }
+        }
+    }
+
+    /// Whether a term on these vertices is evaluated (always, unless adaptive).
+    #[inline]
+    fn active(&self, vertices: &[u32]) -> bool {
+        self.nonlinear.as_ref().is_none_or(|flags| vertices.iter().any(|&v| flags[v as usize]))
+    }
+
+    /// The part `part` of every table: `out −= ∂W/∂U`.
+    fn force_part(&self, u: &[Vec3], part: usize, out: &mut [Vec3]) {
         let sub = |f: &mut Vec3, v: Vec3, scale: f64| {
             for k in 0..3 {
                 f[k] -= scale * v[k];
             }
         };
-        for (n, b) in self.vertex_b.iter().enumerate() {
-            sub(&mut f[n], mul_vec(b, &u[n]), 2.0);
+        for n in part_range(self.vertex_b.len(), part) {
+            sub(&mut out[n], mul_vec(&self.vertex_b[n], &u[n]), 2.0);
         }
-        for (&[lo, hi], m) in self.edge_vertices.iter().zip(&self.edge_b) {
-            let (lo, hi) = (lo as usize, hi as usize);
-            sub(&mut f[lo], mul_vec(m, &u[hi]), 1.0);
-            sub(&mut f[hi], mul_transpose_vec(m, &u[lo]), 1.0);
+        for e in part_range(self.edge_b.len(), part) {
+            let [lo, hi] = self.edge_vertices[e].map(|x| x as usize);
+            let m = &self.edge_b[e];
+            sub(&mut out[lo], mul_vec(m, &u[hi]), 1.0);
+            sub(&mut out[hi], mul_transpose_vec(m, &u[lo]), 1.0);
         }
         // (Uⱼ · c)(Uₖ · Uₗ): ∂/∂Uⱼ = c (Uₖ · Uₗ), ∂/∂Uₖ = (Uⱼ · c) Uₗ, ∂/∂Uₗ = (Uⱼ · c) Uₖ.
-        for (&[j, k, l], c) in self.cubic.keys.iter().zip(&self.cubic.values) {
-            let (j, k, l) = (j as usize, k as usize, l as usize);
+        for i in part_range(self.cubic.keys.len(), part) {
+            let key = &self.cubic.keys[i];
+            if !self.active(key) {
+                continue;
+            }
+            let [j, k, l] = key.map(|x| x as usize);
+            let c = &self.cubic.values[i];
             let ukl = dot(&u[k], &u[l]);
             let ujc = dot(&u[j], c);
-            sub(&mut f[j], *c, ukl);
-            sub(&mut f[k], u[l], ujc);
-            sub(&mut f[l], u[k], ujc);
+            sub(&mut out[j], *c, ukl);
+            sub(&mut out[k], u[l], ujc);
+            sub(&mut out[l], u[k], ujc);
         }
         // d (Uₐ · Uᵦ)(U꜀ · Uₔ).
-        for (&[a, b, c, e], d) in self.quartic.keys.iter().zip(&self.quartic.values) {
-            let (a, b, c, e) = (a as usize, b as usize, c as usize, e as usize);
+        for i in part_range(self.quartic.keys.len(), part) {
+            let key = &self.quartic.keys[i];
+            if !self.active(key) {
+                continue;
+            }
+            let [a, b, c, e] = key.map(|x| x as usize);
+            let d = self.quartic.values[i];
             let s1 = d * dot(&u[a], &u[b]);
             let s2 = d * dot(&u[c], &u[e]);
-            sub(&mut f[a], u[b], s2);
-            sub(&mut f[b], u[a], s2);
-            sub(&mut f[c], u[e], s1);
-            sub(&mut f[e], u[c], s1);
+            sub(&mut out[a], u[b], s2);
+            sub(&mut out[b], u[a], s2);
+            sub(&mut out[c], u[e], s1);
+            sub(&mut out[e], u[c], s1);
+        }
+    }
+
+    /// The part `part` of every table: `out += (∂²W/∂U²) v`.
+    fn stiffness_part(&self, u: &[Vec3], v: &[Vec3], part: usize, out: &mut [Vec3]) {
+        let add = |f: &mut Vec3, w: Vec3, scale: f64| {
+            for k in 0..3 {
+                f[k] += scale * w[k];
+            }
+        };
+        for n in part_range(self.vertex_b.len(), part) {
+            add(&mut out[n], mul_vec(&self.vertex_b[n], &v[n]), 2.0);
+        }
+        for e in part_range(self.edge_b.len(), part) {
+            let [lo, hi] = self.edge_vertices[e].map(|x| x as usize);
+            let m = &self.edge_b[e];
+            add(&mut out[lo], mul_vec(m, &v[hi]), 1.0);
+            add(&mut out[hi], mul_transpose_vec(m, &v[lo]), 1.0);
+        }
+        for i in part_range(self.cubic.keys.len(), part) {
+            let key = &self.cubic.keys[i];
+            if !self.active(key) {
+                continue;
+            }
+            let [j, k, l] = key.map(|x| x as usize);
+            let c = &self.cubic.values[i];
+            let ujc = dot(&u[j], c);
+            let dkl = dot(&v[k], &u[l]) + dot(&u[k], &v[l]);
+            let djc = dot(&v[j], c);
+            add(&mut out[j], *c, dkl);
+            add(&mut out[k], u[l], djc);
+            add(&mut out[k], v[l], ujc);
+            add(&mut out[l], u[k], djc);
+            add(&mut out[l], v[k], ujc);
+        }
+        for i in part_range(self.quartic.keys.len(), part) {
+            let key = &self.quartic.keys[i];
+            if !self.active(key) {
+                continue;
+            }
+            let [a, b, c, e] = key.map(|x| x as usize);
+            let d = self.quartic.values[i];
+            let (s1, s2) = (d * dot(&u[a], &u[b]), d * dot(&u[c], &u[e]));
+            let ds1 = d * (dot(&v[a], &u[b]) + dot(&u[a], &v[b]));
+            let ds2 = d * (dot(&v[c], &u[e]) + dot(&u[c], &v[e]));
+            add(&mut out[a], u[b], ds2);
+            add(&mut out[a], v[b], s2);
+            add(&mut out[b], u[a], ds2);
+            add(&mut out[b], v[a], s2);
+            add(&mut out[c], u[e], ds1);
+            add(&mut out[c], v[e], s1);
+            add(&mut out[e], u[c], ds1);
+            add(&mut out[e], v[c], s1);
+        }
+    }
+
+    /// Turns adaptive non-linearity (paper 2 §6) on: a vertex becomes non-linear when its
+    /// displacement exceeds `threshold` (m) and linear again below `(1 − hysteresis)·threshold`,
+    /// so vertices near the threshold do not flicker. All start linear; call
+    /// [`TensorMassForceField::update_adaptive`] every step.
+    pub fn enable_adaptive(&mut self, threshold: f64, hysteresis: f64) {
+        self.adaptive = Some((threshold, hysteresis.clamp(0.0, 1.0)));
+        self.nonlinear = Some(vec![false; self.vertex_b.len()]);
+    }
+
+    /// Updates which vertices are non-linear from positions `x`; returns how many are.
+    pub fn update_adaptive(&mut self, model: &TetModel, x: &[Vec3]) -> usize {
+        let (Some((threshold, hysteresis)), Some(flags)) = (self.adaptive, self.nonlinear.as_mut())
+        else {
+            return if self.kind == Elasticity::Linear { 0 } else { x.len() };
+        };
+        let (up, down) = (threshold * threshold, (threshold * (1.0 - hysteresis)).powi(2));
+        for ((flag, p), r) in flags.iter_mut().zip(x).zip(&model.rest) {
+            let d2 = (0..3).map(|k| (p[k] - r[k]).powi(2)).sum::<f64>();
+            if d2 > up {
+                *flag = true;
+            } else if d2 < down {
+                *flag = false;
+            }
+        }
+        flags.iter().filter(|&&f| f).count()
+    }
+
+    /// Vertices currently non-linear (all for SVK without adaptivity, none for linear).
+    #[must_use]
+    pub fn nonlinear_count(&self) -> usize {
+        match &self.nonlinear {
+            Some(flags) => flags.iter().filter(|&&f| f).count(),
+            None if self.kind == Elasticity::Linear => 0,
+            None => self.vertex_b.len(),
         }
     }
 
@@ -311,11 +481,7 @@ impl TensorMassForceField {
     /// Elastic energy at positions `x` (J), from the stored terms.
     #[must_use]
     pub fn energy(&self, model: &TetModel, x: &[Vec3]) -> f64 {
-        let u: Vec<Vec3> = x
-            .iter()
-            .zip(&model.rest)
-            .map(|(p, r)| [p[0] - r[0], p[1] - r[1], p[2] - r[2]])
-            .collect();
+        let u = displacements(model, x);
         let mut w = 0.0;
         for (n, b) in self.vertex_b.iter().enumerate() {
             w += dot(&u[n], &mul_vec(b, &u[n]));
@@ -323,11 +489,15 @@ impl TensorMassForceField {
         for (&[lo, hi], m) in self.edge_vertices.iter().zip(&self.edge_b) {
             w += dot(&u[lo as usize], &mul_vec(m, &u[hi as usize]));
         }
-        for (&[j, k, l], c) in self.cubic.keys.iter().zip(&self.cubic.values) {
-            w += dot(&u[j as usize], c) * dot(&u[k as usize], &u[l as usize]);
+        for (key @ &[j, k, l], c) in self.cubic.keys.iter().zip(&self.cubic.values) {
+            if self.active(key) {
+                w += dot(&u[j as usize], c) * dot(&u[k as usize], &u[l as usize]);
+            }
         }
-        for (&[a, b, c, e], d) in self.quartic.keys.iter().zip(&self.quartic.values) {
-            w += d * dot(&u[a as usize], &u[b as usize]) * dot(&u[c as usize], &u[e as usize]);
+        for (key @ &[a, b, c, e], d) in self.quartic.keys.iter().zip(&self.quartic.values) {
+            if self.active(key) {
+                w += d * dot(&u[a as usize], &u[b as usize]) * dot(&u[c as usize], &u[e as usize]);
+            }
         }
         w
     }

@@ -163,6 +163,10 @@ pub struct TensorMassForceField {
     edge_vertices: Vec<[u32; 2]>,
     cubic: TermTable<3, Vec3>,
     quartic: TermTable<4, f64>,
+    /// Per cubic term `(Uⱼ · c)(Uₖ · Uₗ)`, the pair `{k, l}` (see [`Pairs`]).
+    cubic_pair: Vec<u32>,
+    /// Per quartic term `d (Uₐ · Uᵦ)(U꜀ · Uₔ)`, its two pairs.
+    quartic_pairs: Vec<[u32; 2]>,
     /// Adaptive non-linearity: (threshold, hysteresis) and the per-vertex flags.
     adaptive: Option<(f64, f64)>,
     nonlinear: Option<Vec<bool>>,
@@ -224,16 +228,27 @@ impl TensorMassForceField {
                 entry.1 += 1;
             }
         }
-        Self {
+        let mut field = Self {
             kind,
             vertex_b,
             edge_b,
             edge_vertices: topo.edges().to_vec(),
+            cubic_pair: Vec::new(),
+            quartic_pairs: Vec::new(),
             cubic: TermTable::build(cubic),
             quartic: TermTable::build(quartic),
             adaptive: None,
             nonlinear: None,
-        }
+        };
+        let edge_of: HashMap<[u32; 2], u32> =
+            topo.edges().iter().enumerate().map(|(i, &e)| (e, i as u32)).collect();
+        let vertices = field.vertex_b.len() as u32;
+        let pair =
+            |a: u32, b: u32| -> u32 { if a == b { a } else { vertices + edge_of[&sorted2(a, b)] } };
+        field.cubic_pair = field.cubic.keys.iter().map(|&[_, k, l]| pair(k, l)).collect();
+        field.quartic_pairs =
+            field.quartic.keys.iter().map(|&[a, b, c, e]| [pair(a, b), pair(c, e)]).collect();
+        field
     }
 
     /// Removes tetrahedron `t` from `topo` and subtracts its stiffness contributions; false when it
@@ -285,9 +300,23 @@ impl TensorMassForceField {
     /// `f += elastic forces` at positions `x` (rest positions from `model`). With adaptive
     /// non-linearity on, a cubic or quartic term counts only where one of its vertices is
     /// non-linear ([`TensorMassForceField::update_adaptive`]).
+    ///
+    /// The non-linear terms are products of the pair products `Uₐ · Uᵦ` over vertices (`a = b`)
+    /// and edges: those are computed once, each term adds its coefficient to the pairs it
+    /// multiplies (`∂W/∂(Uₐ · Uᵦ)`), and the pairs turn into forces at the end.
     pub fn add_forces(&self, model: &TetModel, x: &[Vec3], f: &mut [Vec3]) {
         let u = displacements(model, x);
-        self.chunked(f, |part, out| self.force_part(&u, part, out));
+        let pairs: Vec<f64> =
+            if self.cubic.keys.is_empty() { Vec::new() } else { self.pair_products(&u) };
+        self.chunked(f, |part, out| self.force_part(&u, &pairs, part, out));
+    }
+
+    /// `Uₐ · Uₐ` per vertex, then `Uₐ · Uᵦ` per edge.
+    fn pair_products(&self, u: &[Vec3]) -> Vec<f64> {
+        let mut p = Vec::with_capacity(u.len() + self.edge_vertices.len());
+        p.extend(u.iter().map(|a| dot(a, a)));
+        p.extend(self.edge_vertices.iter().map(|&[a, b]| dot(&u[a as usize], &u[b as usize])));
+        p
     }
 
     /// `out += K(x) v`, the tangent stiffness `−∂f/∂x` at positions `x` times `v` (the same
@@ -324,7 +353,7 @@ impl TensorMassForceField {
     }
 
     /// The part `part` of every table: `out −= ∂W/∂U`.
-    fn force_part(&self, u: &[Vec3], part: usize, out: &mut [Vec3]) {
+    fn force_part(&self, u: &[Vec3], pairs: &[f64], part: usize, out: &mut [Vec3]) {
         let sub = |f: &mut Vec3, v: Vec3, scale: f64| {
             for k in 0..3 {
                 f[k] -= scale * v[k];
@@ -339,34 +368,45 @@ impl TensorMassForceField {
             sub(&mut out[lo], mul_vec(m, &u[hi]), 1.0);
             sub(&mut out[hi], mul_transpose_vec(m, &u[lo]), 1.0);
         }
-        // (Uⱼ · c)(Uₖ · Uₗ): ∂/∂Uⱼ = c (Uₖ · Uₗ), ∂/∂Uₖ = (Uⱼ · c) Uₗ, ∂/∂Uₗ = (Uⱼ · c) Uₖ.
-        for i in part_range(self.cubic.keys.len(), part) {
-            let key = &self.cubic.keys[i];
-            if !self.active(key) {
-                continue;
-            }
-            let [j, k, l] = key.map(|x| x as usize);
-            let c = &self.cubic.values[i];
-            let ukl = dot(&u[k], &u[l]);
-            let ujc = dot(&u[j], c);
-            sub(&mut out[j], *c, ukl);
-            sub(&mut out[k], u[l], ujc);
-            sub(&mut out[l], u[k], ujc);
+        if pairs.is_empty() {
+            return;
         }
-        // d (Uₐ · Uᵦ)(U꜀ · Uₔ).
-        for i in part_range(self.quartic.keys.len(), part) {
-            let key = &self.quartic.keys[i];
-            if !self.active(key) {
+        // ∂W/∂(pair product), accumulated term by term.
+        let mut g = vec![0.0; pairs.len()];
+        // (Uⱼ · c) Pₖₗ: ∂/∂Uⱼ = c Pₖₗ, ∂/∂Pₖₗ = Uⱼ · c.
+        for i in part_range(self.cubic.keys.len(), part) {
+            if !self.active(&self.cubic.keys[i]) {
                 continue;
             }
-            let [a, b, c, e] = key.map(|x| x as usize);
+            let j = self.cubic.keys[i][0] as usize;
+            let c = &self.cubic.values[i];
+            let kl = self.cubic_pair[i] as usize;
+            sub(&mut out[j], *c, pairs[kl]);
+            g[kl] += dot(&u[j], c);
+        }
+        // d P₁ P₂: ∂/∂P₁ = d P₂, ∂/∂P₂ = d P₁.
+        for i in part_range(self.quartic.keys.len(), part) {
+            if !self.active(&self.quartic.keys[i]) {
+                continue;
+            }
+            let [p1, p2] = self.quartic_pairs[i].map(|p| p as usize);
             let d = self.quartic.values[i];
-            let s1 = d * dot(&u[a], &u[b]);
-            let s2 = d * dot(&u[c], &u[e]);
-            sub(&mut out[a], u[b], s2);
-            sub(&mut out[b], u[a], s2);
-            sub(&mut out[c], u[e], s1);
-            sub(&mut out[e], u[c], s1);
+            g[p1] += d * pairs[p2];
+            g[p2] += d * pairs[p1];
+        }
+        // ∂Pₐₐ/∂Uₐ = 2Uₐ; ∂Pₐᵦ/∂Uₐ = Uᵦ.
+        let vertices = u.len();
+        for (a, &ga) in g[..vertices].iter().enumerate() {
+            if ga != 0.0 {
+                sub(&mut out[a], u[a], 2.0 * ga);
+            }
+        }
+        for (&[a, b], &ge) in self.edge_vertices.iter().zip(&g[vertices..]) {
+            if ge != 0.0 {
+                let (a, b) = (a as usize, b as usize);
+                sub(&mut out[a], u[b], ge);
+                sub(&mut out[b], u[a], ge);
+            }
         }
     }
 

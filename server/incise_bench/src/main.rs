@@ -6,6 +6,7 @@ mod plot;
 mod progress;
 mod speed_error;
 mod stroke;
+mod tensor_mass;
 mod timing;
 
 use clap::{Parser, Subcommand};
@@ -26,6 +27,10 @@ enum Command {
     /// Speed against error on scenes B (hanging block), C (cantilever) and the liver, for each
     /// model, integrator and dt in {1 ms, 10 ms}; table, CSV, JSON and a log-log PNG.
     SpeedError(speed_error::SpeedErrorArgs),
+    /// Paper 2's Table 1 (volume change of a bent cylinder and a pulled liver for the linear,
+    /// St Venant-Kirchhoff and SVK + incompressibility tensor-mass models, and corotational
+    /// hexahedra), explicit speed per model, and adaptive non-linearity against full SVK.
+    TensorMass(tensor_mass::TensorMassArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -33,5 +38,6 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Grid(args) => grid_report::run(&args),
         Command::SpeedError(args) => speed_error::run(&args),
+        Command::TensorMass(args) => tensor_mass::run(&args),
     }
 }

@@ -34,6 +34,13 @@ impl FixedNodes {
         Self::by_position(rest, |p| (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a]))
     }
 
+    /// Also holds node `n`.
+    #[must_use]
+    pub fn with(mut self, n: usize) -> Self {
+        self.fixed[n] = true;
+        self
+    }
+
     /// Adds the nodes of `other`.
     #[must_use]
     pub fn union(mut self, other: &Self) -> Self {

@@ -355,7 +355,10 @@ mod adaptive {
 
     /// Vertices of `x` that have not moved (the deformation fixes the base's centre).
     fn fixed_count(model: &TetModel, x: &[Vec3]) -> usize {
-        x.iter().zip(&model.rest).filter(|(p, r)| (0..3).all(|k| p[k].to_bits() == r[k].to_bits())).count()
+        x.iter()
+            .zip(&model.rest)
+            .filter(|(p, r)| (0..3).all(|k| p[k].to_bits() == r[k].to_bits()))
+            .count()
     }
 
     #[test]

@@ -4,10 +4,11 @@
 //! function) and its message says what was wrong and where: the header field, the byte count, the
 //! voxel.
 
+use incise_fem::tet::TetMeshError;
 use incise_grid::VolumeError;
 use thiserror::Error;
 
-/// Why a label volume could not be read or written.
+/// Why a label volume or a tetrahedral mesh could not be read or written.
 #[derive(Debug, Error)]
 pub enum IoError {
     /// The operating system refused a read or write, or a gzip stream is corrupt.
@@ -100,6 +101,30 @@ pub enum IoError {
         /// The file.
         file: String,
     },
+    /// A text mesh file (Gmsh, legacy VTK, VTK XML) that does not parse: a missing section, a
+    /// malformed number, a count that disagrees with the data, an element naming a node that does
+    /// not exist.
+    #[error("{file}: line {line}: {what}")]
+    Syntax {
+        /// The file.
+        file: String,
+        /// The line (1-based) where the problem shows.
+        line: usize,
+        /// What is wrong there.
+        what: String,
+    },
+    /// Tetrahedra that parse but do not form a valid mesh (degenerate, repeating a vertex, a
+    /// triangle in three of them, a non-finite vertex), as [`incise_fem::tet::TetMesh::new`]
+    /// reports them.
+    #[error("{file}: {}{source}", located(.at.as_deref()))]
+    Mesh {
+        /// The file.
+        file: String,
+        /// The line and element (or vertex) the problem is about, where there is one.
+        at: Option<String>,
+        /// Why the mesh was refused; its tetrahedron index counts the file's tetrahedra only.
+        source: TetMeshError,
+    },
     /// A scene file that is not a valid `SceneConfig` (the message names the line and key).
     #[error("{source}")]
     Scene {
@@ -124,9 +149,16 @@ impl IoError {
             | Self::BadSpacing { file, .. }
             | Self::Volume { file, .. }
             | Self::Scene { file, .. }
+            | Self::Syntax { file, .. }
+            | Self::Mesh { file, .. }
             | Self::UnknownFormat { file } => file,
         }
     }
+}
+
+/// `at` followed by a colon, or nothing.
+fn located(at: Option<&str>) -> String {
+    at.map(|at| format!("{at}: ")).unwrap_or_default()
 }
 
 /// `n` with thousands separators, because byte counts of volumes run to eight digits.

@@ -4,10 +4,21 @@
 //! bytes changed, each fed to both decoders plain and gzip-compressed. Every case must come back
 //! as `Ok` or `Err`; a panic fails the property. Volumes are tiny so that 256 cases per property
 //! run in well under a second.
+//!
+//! The text mesh decoders (Gmsh 2.2 and 4.1, legacy VTK, VTK XML) get the same treatment from a
+//! deterministic generator: valid encodings of a small cylinder with bytes changed, cut short,
+//! lines deleted, duplicated or swapped, and numbers replaced by extreme ones, a few hundred
+//! cases per decoder.
 
-use crate::{decode_inr, decode_nifti, decode_volume, encode_inr, encode_nifti};
+use crate::{
+    decode_gmsh, decode_inr, decode_nifti, decode_volume, decode_vtk_legacy, decode_vtu,
+    encode_gmsh22, encode_inr, encode_nifti, encode_vtk_legacy, encode_vtu,
+};
+use incise_fem::tet::TetMesh;
+use incise_fem::tet::generate::cylinder;
 use incise_grid::LabelVolume;
 use proptest::prelude::*;
+use std::fmt::Write as _;
 
 /// A small volume with a rotated, offset placement; `wide` puts a label above 255 in it so that
 /// the INR encoder writes 16-bit voxels.
@@ -95,4 +106,203 @@ proptest! {
         bytes[i] = value;
         decode_all(&bytes);
     }
+}
+
+/// `SplitMix64`: a fixed stream of pseudo-random numbers, so every mesh case reproduces.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// A number in `0..n` (`n > 0`).
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+}
+
+/// A small cylinder whose tetrahedra carry regions 1, 2 and 3.
+fn small_mesh() -> TetMesh {
+    let base = cylinder(0.01, 0.03, 2, 3);
+    let regions = (0..base.tets().len()).map(|t| (t % 3) as u32 + 1).collect();
+    TetMesh::new(base.vertices().to_vec(), base.tets().to_vec(), regions)
+        .expect("the cylinder with regions is valid")
+}
+
+/// `mesh` as Gmsh MSH 4.1: one volume entity per region, with physical tag `10 + region`,
+/// nodes in two blocks with tags from 101 in steps of 3. Returns the text and the mesh it
+/// decodes to (tetrahedra grouped by region, regions the physical tags).
+fn encode_gmsh41(mesh: &TetMesh) -> (String, TetMesh) {
+    let mut regions: Vec<u32> = mesh.regions().to_vec();
+    regions.sort_unstable();
+    regions.dedup();
+    let tag = |i: u32| 101 + 3 * u64::from(i);
+    let mut out = String::from("$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Entities\n");
+    let _ = writeln!(out, "0 0 0 {}", regions.len());
+    for r in &regions {
+        let _ = writeln!(out, "{r} -1 -1 -1 1 1 1 1 {} 0", 10 + r);
+    }
+    let n = mesh.vertices().len();
+    let half = n / 2;
+    let _ = write!(out, "$EndEntities\n$Nodes\n2 {n} {} {}\n", tag(0), tag(n as u32 - 1));
+    for (start, end) in [(0, half), (half, n)] {
+        let _ = writeln!(out, "3 1 0 {}", end - start);
+        for i in start..end {
+            let _ = writeln!(out, "{}", tag(i as u32));
+        }
+        for [x, y, z] in &mesh.vertices()[start..end] {
+            let _ = writeln!(out, "{x:?} {y:?} {z:?}");
+        }
+    }
+    let t = mesh.tets().len();
+    let _ = write!(out, "$EndNodes\n$Elements\n{} {t} 1 {t}\n", regions.len());
+    let mut element = 0;
+    for &r in &regions {
+        let inside: Vec<&[u32; 4]> = mesh
+            .tets()
+            .iter()
+            .zip(mesh.regions())
+            .filter(|&(_, &q)| q == r)
+            .map(|(t, _)| t)
+            .collect();
+        let _ = writeln!(out, "3 {r} 4 {}", inside.len());
+        for nodes in inside {
+            element += 1;
+            let [a, b, c, d] = nodes.map(tag);
+            let _ = writeln!(out, "{element} {a} {b} {c} {d}");
+        }
+    }
+    out.push_str("$EndElements\n");
+    let mut order: Vec<usize> = (0..t).collect();
+    order.sort_by_key(|&i| mesh.regions()[i]);
+    let expected = TetMesh::new(
+        mesh.vertices().to_vec(),
+        order.iter().map(|&i| mesh.tets()[i]).collect(),
+        order.iter().map(|&i| 10 + mesh.regions()[i]).collect(),
+    )
+    .expect("reordering tetrahedra keeps the mesh valid");
+    (out, expected)
+}
+
+/// `text` damaged one way: bytes changed, cut short, a line deleted, duplicated or swapped with
+/// another, or a token replaced by an extreme one.
+fn damage(text: &str, rng: &mut SplitMix) -> String {
+    const BYTES: &[u8] = b"0123456789-+.eE \n\t$<>/\"'=_xX\0\xff";
+    const TOKENS: [&str; 12] = [
+        "-1",
+        "0",
+        "4294967295",
+        "4294967296",
+        "18446744073709551616",
+        "1e308",
+        "nan",
+        "-inf",
+        "",
+        "$EndNodes",
+        "</DataArray>",
+        "<DataArray format=\"binary\">",
+    ];
+    let mut bytes = text.as_bytes().to_vec();
+    let line_starts: Vec<usize> = std::iter::once(0)
+        .chain(bytes.iter().enumerate().filter(|&(_, &b)| b == b'\n').map(|(i, _)| i + 1))
+        .filter(|&i| i < bytes.len())
+        .collect();
+    let line = |k: usize| {
+        let start = line_starts[k];
+        let end = line_starts.get(k + 1).copied().unwrap_or(bytes.len());
+        start..end
+    };
+    match rng.below(6) {
+        0 => {
+            for _ in 0..=rng.below(4) {
+                let at = rng.below(bytes.len());
+                bytes[at] = if rng.below(4) == 0 {
+                    rng.next() as u8
+                } else {
+                    BYTES[rng.below(BYTES.len())]
+                };
+            }
+        }
+        1 => bytes.truncate(rng.below(bytes.len())),
+        2 => {
+            let range = line(rng.below(line_starts.len()));
+            bytes.drain(range);
+        }
+        3 => {
+            let range = line(rng.below(line_starts.len()));
+            let copy = bytes[range.clone()].to_vec();
+            bytes.splice(range.start..range.start, copy);
+        }
+        4 => {
+            let (a, b) = (rng.below(line_starts.len()), rng.below(line_starts.len()));
+            let (a, b) = (line(a.min(b)), line(a.max(b)));
+            if a != b {
+                let (first, second) = (bytes[a.clone()].to_vec(), bytes[b.clone()].to_vec());
+                bytes.splice(b, first);
+                bytes.splice(a, second);
+            }
+        }
+        _ => {
+            // Replace the token around a random byte.
+            let at = rng.below(bytes.len());
+            let is_space = |b: u8| b.is_ascii_whitespace() || b == b'<' || b == b'>';
+            let start = bytes[..at].iter().rposition(|&b| is_space(b)).map_or(0, |i| i + 1);
+            let end = bytes[at..].iter().position(|&b| is_space(b)).map_or(bytes.len(), |i| at + i);
+            let token = TOKENS[rng.below(TOKENS.len())].as_bytes().to_vec();
+            bytes.splice(start..end.max(start), token);
+        }
+    }
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+/// Feeds 400 damaged versions of `valid`, which decodes to `mesh`, to `decode`; none may panic,
+/// and the damage must make at least a third of them errors (else it is not reaching the parser).
+fn fuzz_mesh_decoder(
+    seed: u64,
+    (valid, mesh): (String, TetMesh),
+    decode: fn(&str, &str) -> Result<TetMesh, crate::IoError>,
+) {
+    let valid = valid.as_str();
+    assert_eq!(decode(valid, "valid").expect("the valid encoding decodes"), mesh);
+    let mut rng = SplitMix(seed);
+    let cases = 400;
+    let mut errors = 0;
+    for case in 0..cases {
+        let text = damage(valid, &mut rng);
+        let result = std::panic::catch_unwind(|| decode(&text, "fuzz"))
+            .unwrap_or_else(|_| panic!("case {case} of seed {seed} panicked on:\n{text}"));
+        if let Err(e) = result {
+            assert_eq!(e.file(), "fuzz");
+            errors += 1;
+        }
+    }
+    assert!(errors * 3 >= cases, "only {errors} of {cases} damaged encodings were refused");
+}
+
+#[test]
+fn damaged_gmsh22_never_panics() {
+    let mesh = small_mesh();
+    fuzz_mesh_decoder(1, (encode_gmsh22(&mesh), mesh), decode_gmsh);
+}
+
+#[test]
+fn damaged_gmsh41_never_panics() {
+    fuzz_mesh_decoder(2, encode_gmsh41(&small_mesh()), decode_gmsh);
+}
+
+#[test]
+fn damaged_vtk_legacy_never_panics() {
+    let mesh = small_mesh();
+    fuzz_mesh_decoder(3, (encode_vtk_legacy(&mesh), mesh), decode_vtk_legacy);
+}
+
+#[test]
+fn damaged_vtu_never_panics() {
+    let mesh = small_mesh();
+    fuzz_mesh_decoder(4, (encode_vtu(&mesh), mesh), decode_vtu);
 }

@@ -1,12 +1,16 @@
 //! Reading and writing segmented label volumes: NIfTI-1 single-file images (`.nii`, `.nii.gz`)
-//! and INRIMAGE-4 images (`.inr`, `.inr.gz`).
+//! and INRIMAGE-4 images (`.inr`, `.inr.gz`); and reading tetrahedral meshes: Gmsh MSH 2.2 and
+//! 4.1 (`.msh`), legacy VTK (`.vtk`) and VTK XML unstructured grids (`.vtu`), all ASCII
+//! ([`read_tet_mesh`]).
 //!
-//! Every reader returns an [`incise_grid::LabelVolume`] in metres, and every error names the file
-//! and what in it is wrong. Decoders never panic and never allocate more than the header says the
-//! data needs: a header announcing more voxels than the file holds is reported as truncated before
-//! the label vector is allocated, and gzip streams are inflated only as far as the header asks.
+//! Every volume reader returns an [`incise_grid::LabelVolume`] in metres, and every error names the
+//! file and what in it is wrong. Decoders never panic and never allocate more than the header says
+//! the data needs: a header announcing more voxels than the file holds is reported as truncated
+//! before the label vector is allocated, and gzip streams are inflated only as far as the header
+//! asks.
 //! Gzip is recognised by its magic bytes, whatever the file is called. Scene files (TOML) are
-//! read with the volume they name ([`read_scene`]).
+//! read with the volume they name ([`read_scene`]). Mesh readers name the line of every error and
+//! let vectors grow only with the data actually read, whatever counts a header announces.
 
 mod error;
 mod gzip;
@@ -14,6 +18,7 @@ mod inr;
 mod nifti;
 mod samples;
 mod scene;
+mod tet_mesh;
 
 #[cfg(test)]
 mod fuzz;
@@ -22,6 +27,10 @@ pub use error::IoError;
 pub use inr::{decode_inr, encode_inr, read_inr, write_inr};
 pub use nifti::{decode_nifti, encode_nifti, read_nifti, write_nifti};
 pub use scene::read_scene;
+pub use tet_mesh::{
+    decode_gmsh, decode_vtk_legacy, decode_vtu, encode_gmsh22, encode_vtk_legacy, encode_vtu,
+    read_tet_mesh,
+};
 
 use incise_grid::LabelVolume;
 use std::path::Path;

@@ -102,6 +102,11 @@ impl CentralDifference {
         self.dt
     }
 
+    /// Sets every velocity to zero (the previous positions to `x`).
+    pub fn stop(&mut self, x: &[Vec3]) {
+        self.previous.copy_from_slice(x);
+    }
+
     /// Velocities `(x − x⁻)/Δt` (m/s).
     #[must_use]
     pub fn velocities(&self, x: &[Vec3]) -> Vec<Vec3> {

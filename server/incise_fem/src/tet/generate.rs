@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 
 /// The 6 tetrahedra of a cell (corner `c` at `(c & 1, (c >> 1) & 1, c >> 2)`): for each order of
 /// the three axes, the path 0 → one axis → two axes → 7.
-const KUHN: [[usize; 4]; 6] = {
+pub const KUHN: [[usize; 4]; 6] = {
     let orders = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
     let mut out = [[0; 4]; 6];
     let mut i = 0;

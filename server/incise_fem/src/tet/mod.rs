@@ -9,6 +9,7 @@ pub mod explicit;
 pub mod generate;
 pub mod incompressible;
 pub mod mesh;
+pub mod relax;
 pub mod tensor_mass;
 pub mod topology;
 

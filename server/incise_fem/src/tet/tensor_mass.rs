@@ -167,9 +167,77 @@ pub struct TensorMassForceField {
     cubic_pair: Vec<u32>,
     /// Per quartic term `d (Uₐ · Uᵦ)(U꜀ · Uₔ)`, its two pairs.
     quartic_pairs: Vec<[u32; 2]>,
-    /// Adaptive non-linearity: (threshold, hysteresis) and the per-vertex flags.
-    adaptive: Option<(f64, f64)>,
-    nonlinear: Option<Vec<bool>>,
+    /// Adaptive non-linearity (paper 2 §6), when on.
+    adaptive: Option<AdaptiveState>,
+}
+
+/// Which vertices are non-linear, and the terms that touch one of them (kept current as
+/// vertices switch, so the force loops visit only those).
+#[derive(Clone, Debug)]
+struct AdaptiveState {
+    threshold: f64,
+    hysteresis: f64,
+    flags: Vec<bool>,
+    /// Per table (0 cubic, 1 quartic): the terms of each vertex, the non-linear vertices of each
+    /// term, and the active terms in table order.
+    of_vertex: [Vec<Vec<u32>>; 2],
+    count: [Vec<u8>; 2],
+    active: [Vec<u32>; 2],
+    dirty: bool,
+}
+
+impl AdaptiveState {
+    fn new<const A: usize, const B: usize>(
+        threshold: f64,
+        hysteresis: f64,
+        vertices: usize,
+        cubic: &[[u32; A]],
+        quartic: &[[u32; B]],
+    ) -> Self {
+        fn incidence<const N: usize>(vertices: usize, keys: &[[u32; N]]) -> Vec<Vec<u32>> {
+            let mut of = vec![Vec::new(); vertices];
+            for (i, key) in keys.iter().enumerate() {
+                let mut distinct = key.to_vec();
+                distinct.sort_unstable();
+                distinct.dedup();
+                for v in distinct {
+                    of[v as usize].push(i as u32);
+                }
+            }
+            of
+        }
+        Self {
+            threshold,
+            hysteresis,
+            flags: vec![false; vertices],
+            of_vertex: [incidence(vertices, cubic), incidence(vertices, quartic)],
+            count: [vec![0; cubic.len()], vec![0; quartic.len()]],
+            active: [Vec::new(), Vec::new()],
+            dirty: false,
+        }
+    }
+
+    fn switch(&mut self, v: usize, on: bool) {
+        self.flags[v] = on;
+        for table in 0..2 {
+            for &t in &self.of_vertex[table][v] {
+                let c = &mut self.count[table][t as usize];
+                *c = if on { *c + 1 } else { *c - 1 };
+            }
+        }
+        self.dirty = true;
+    }
+
+    fn rebuild(&mut self) {
+        if self.dirty {
+            for table in 0..2 {
+                let count = &self.count[table];
+                self.active[table] =
+                    (0..count.len() as u32).filter(|&i| count[i as usize] > 0).collect();
+            }
+            self.dirty = false;
+        }
+    }
 }
 
 /// The term tables are evaluated in this many fixed parts (each into its own buffer, summed in
@@ -238,7 +306,6 @@ impl TensorMassForceField {
             cubic: TermTable::build(cubic),
             quartic: TermTable::build(quartic),
             adaptive: None,
-            nonlinear: None,
         };
         let edge_of: HashMap<[u32; 2], u32> =
             topo.edges().iter().enumerate().map(|(i, &e)| (e, i as u32)).collect();
@@ -346,10 +413,25 @@ impl TensorMassForceField {
         }
     }
 
-    /// Whether a term on these vertices is evaluated (always, unless adaptive).
+    /// Calls `body(i)` for the terms of `table` (0 cubic, 1 quartic) in part `part`, in table
+    /// order: all of them, or with adaptive non-linearity only those touching a non-linear vertex.
     #[inline]
-    fn active(&self, vertices: &[u32]) -> bool {
-        self.nonlinear.as_ref().is_none_or(|flags| vertices.iter().any(|&v| flags[v as usize]))
+    fn for_terms(&self, table: usize, part: usize, mut body: impl FnMut(usize)) {
+        let n = if table == 0 { self.cubic.keys.len() } else { self.quartic.keys.len() };
+        let range = part_range(n, part);
+        match &self.adaptive {
+            None => range.for_each(body),
+            Some(a) => {
+                // The active terms of the same part as without adaptivity, so that with every
+                // vertex non-linear the sums are the full model's, bit for bit.
+                let active = &a.active[table];
+                let lo = active.partition_point(|&i| (i as usize) < range.start);
+                let hi = active.partition_point(|&i| (i as usize) < range.end);
+                for &i in &active[lo..hi] {
+                    body(i as usize);
+                }
+            }
+        }
     }
 
     /// The part `part` of every table: `out −= ∂W/∂U`.
@@ -374,26 +456,20 @@ impl TensorMassForceField {
         // ∂W/∂(pair product), accumulated term by term.
         let mut g = vec![0.0; pairs.len()];
         // (Uⱼ · c) Pₖₗ: ∂/∂Uⱼ = c Pₖₗ, ∂/∂Pₖₗ = Uⱼ · c.
-        for i in part_range(self.cubic.keys.len(), part) {
-            if !self.active(&self.cubic.keys[i]) {
-                continue;
-            }
+        self.for_terms(0, part, |i| {
             let j = self.cubic.keys[i][0] as usize;
             let c = &self.cubic.values[i];
             let kl = self.cubic_pair[i] as usize;
             sub(&mut out[j], *c, pairs[kl]);
             g[kl] += dot(&u[j], c);
-        }
+        });
         // d P₁ P₂: ∂/∂P₁ = d P₂, ∂/∂P₂ = d P₁.
-        for i in part_range(self.quartic.keys.len(), part) {
-            if !self.active(&self.quartic.keys[i]) {
-                continue;
-            }
+        self.for_terms(1, part, |i| {
             let [p1, p2] = self.quartic_pairs[i].map(|p| p as usize);
             let d = self.quartic.values[i];
             g[p1] += d * pairs[p2];
             g[p2] += d * pairs[p1];
-        }
+        });
         // ∂Pₐₐ/∂Uₐ = 2Uₐ; ∂Pₐᵦ/∂Uₐ = Uᵦ.
         let vertices = u.len();
         for (a, &ga) in g[..vertices].iter().enumerate() {
@@ -426,12 +502,8 @@ impl TensorMassForceField {
             add(&mut out[lo], mul_vec(m, &v[hi]), 1.0);
             add(&mut out[hi], mul_transpose_vec(m, &v[lo]), 1.0);
         }
-        for i in part_range(self.cubic.keys.len(), part) {
-            let key = &self.cubic.keys[i];
-            if !self.active(key) {
-                continue;
-            }
-            let [j, k, l] = key.map(|x| x as usize);
+        self.for_terms(0, part, |i| {
+            let [j, k, l] = self.cubic.keys[i].map(|x| x as usize);
             let c = &self.cubic.values[i];
             let ujc = dot(&u[j], c);
             let dkl = dot(&v[k], &u[l]) + dot(&u[k], &v[l]);
@@ -441,13 +513,9 @@ impl TensorMassForceField {
             add(&mut out[k], v[l], ujc);
             add(&mut out[l], u[k], djc);
             add(&mut out[l], v[k], ujc);
-        }
-        for i in part_range(self.quartic.keys.len(), part) {
-            let key = &self.quartic.keys[i];
-            if !self.active(key) {
-                continue;
-            }
-            let [a, b, c, e] = key.map(|x| x as usize);
+        });
+        self.for_terms(1, part, |i| {
+            let [a, b, c, e] = self.quartic.keys[i].map(|x| x as usize);
             let d = self.quartic.values[i];
             let (s1, s2) = (d * dot(&u[a], &u[b]), d * dot(&u[c], &u[e]));
             let ds1 = d * (dot(&v[a], &u[b]) + dot(&u[a], &v[b]));
@@ -460,41 +528,48 @@ impl TensorMassForceField {
             add(&mut out[c], v[e], s1);
             add(&mut out[e], u[c], ds1);
             add(&mut out[e], v[c], s1);
-        }
+        });
     }
 
     /// Turns adaptive non-linearity (paper 2 §6) on: a vertex becomes non-linear when its
     /// displacement exceeds `threshold` (m) and linear again below `(1 − hysteresis)·threshold`,
-    /// so vertices near the threshold do not flicker. All start linear; call
+    /// so vertices near the threshold do not flicker. A cubic or quartic term counts while one of
+    /// its vertices is non-linear. All start linear; call
     /// [`TensorMassForceField::update_adaptive`] every step.
     pub fn enable_adaptive(&mut self, threshold: f64, hysteresis: f64) {
-        self.adaptive = Some((threshold, hysteresis.clamp(0.0, 1.0)));
-        self.nonlinear = Some(vec![false; self.vertex_b.len()]);
+        self.adaptive = Some(AdaptiveState::new(
+            threshold,
+            hysteresis.clamp(0.0, 1.0),
+            self.vertex_b.len(),
+            &self.cubic.keys,
+            &self.quartic.keys,
+        ));
     }
 
     /// Updates which vertices are non-linear from positions `x`; returns how many are.
     pub fn update_adaptive(&mut self, model: &TetModel, x: &[Vec3]) -> usize {
-        let (Some((threshold, hysteresis)), Some(flags)) = (self.adaptive, self.nonlinear.as_mut())
-        else {
-            return if self.kind == Elasticity::Linear { 0 } else { x.len() };
+        let Some(state) = self.adaptive.as_mut() else {
+            return self.nonlinear_count();
         };
-        let (up, down) = (threshold * threshold, (threshold * (1.0 - hysteresis)).powi(2));
-        for ((flag, p), r) in flags.iter_mut().zip(x).zip(&model.rest) {
+        let up = state.threshold * state.threshold;
+        let down = (state.threshold * (1.0 - state.hysteresis)).powi(2);
+        for (v, (p, r)) in x.iter().zip(&model.rest).enumerate() {
             let d2 = (0..3).map(|k| (p[k] - r[k]).powi(2)).sum::<f64>();
-            if d2 > up {
-                *flag = true;
-            } else if d2 < down {
-                *flag = false;
+            if d2 > up && !state.flags[v] {
+                state.switch(v, true);
+            } else if d2 < down && state.flags[v] {
+                state.switch(v, false);
             }
         }
-        flags.iter().filter(|&&f| f).count()
+        state.rebuild();
+        state.flags.iter().filter(|&&f| f).count()
     }
 
     /// Vertices currently non-linear (all for SVK without adaptivity, none for linear).
     #[must_use]
     pub fn nonlinear_count(&self) -> usize {
-        match &self.nonlinear {
-            Some(flags) => flags.iter().filter(|&&f| f).count(),
+        match &self.adaptive {
+            Some(state) => state.flags.iter().filter(|&&f| f).count(),
             None if self.kind == Elasticity::Linear => 0,
             None => self.vertex_b.len(),
         }
@@ -529,15 +604,15 @@ impl TensorMassForceField {
         for (&[lo, hi], m) in self.edge_vertices.iter().zip(&self.edge_b) {
             w += dot(&u[lo as usize], &mul_vec(m, &u[hi as usize]));
         }
-        for (key @ &[j, k, l], c) in self.cubic.keys.iter().zip(&self.cubic.values) {
-            if self.active(key) {
-                w += dot(&u[j as usize], c) * dot(&u[k as usize], &u[l as usize]);
-            }
-        }
-        for (key @ &[a, b, c, e], d) in self.quartic.keys.iter().zip(&self.quartic.values) {
-            if self.active(key) {
-                w += d * dot(&u[a as usize], &u[b as usize]) * dot(&u[c as usize], &u[e as usize]);
-            }
+        for part in 0..PARTS {
+            self.for_terms(0, part, |i| {
+                let [j, k, l] = self.cubic.keys[i].map(|x| x as usize);
+                w += dot(&u[j], &self.cubic.values[i]) * dot(&u[k], &u[l]);
+            });
+            self.for_terms(1, part, |i| {
+                let [a, b, c, e] = self.quartic.keys[i].map(|x| x as usize);
+                w += self.quartic.values[i] * dot(&u[a], &u[b]) * dot(&u[c], &u[e]);
+            });
         }
         w
     }

@@ -1,0 +1,140 @@
+//! Static equilibrium of the tensor-mass model by dynamic relaxation with kinetic damping: the
+//! explicit integrator runs undamped and every time the kinetic energy passes a peak all
+//! velocities are zeroed, so the motion loses its energy at the potential's lowest point along
+//! its path (Cundall's method). It needs only forces (no tangent stiffness, which for St
+//! Venant-Kirchhoff under compression is indefinite) and converges for every mode at the rate of
+//! the slowest, which suits the large-deformation references of paper 2's Table 1.
+
+use super::element::TetModel;
+use super::explicit::CentralDifference;
+use super::incompressible::Incompressibility;
+use super::tensor_mass::TensorMassForceField;
+use super::topology::TetTopology;
+use crate::constraints::FixedNodes;
+use incise_math::Vec3;
+
+/// Vertices moved to prescribed positions (they are held there, like fixed ones).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Prescribed {
+    /// Vertex and its target position (m).
+    pub targets: Vec<(usize, Vec3)>,
+    /// Steps over which the vertices move from rest to their targets.
+    pub ramp_steps: usize,
+}
+
+/// When to stop.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RelaxSettings {
+    /// Stop when the largest force on a free vertex is below this fraction of the largest force
+    /// on a held one (the reaction).
+    pub tolerance: f64,
+    /// Give up after this many steps.
+    pub max_steps: usize,
+}
+
+/// What a relaxation did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RelaxReport {
+    /// Steps run (in the last attempt).
+    pub steps: usize,
+    /// The step used (s): the one asked for, halved after each attempt that blew up.
+    pub dt: f64,
+    /// Final residual (see [`RelaxSettings::tolerance`]).
+    pub residual: f64,
+    /// Whether the tolerance was reached.
+    pub converged: bool,
+}
+
+/// Attempts with a halved step after a blow-up: the stable step is estimated from the rest
+/// stiffness, and the incompressibility penalty or strongly stretched SVK can be stiffer.
+const ATTEMPTS: usize = 5;
+
+/// Relaxes `x` (start: rest positions) to equilibrium with `fixed` vertices held at rest and the
+/// `prescribed` ones moved to their targets. `fixed` must include the prescribed vertices. When
+/// the motion blows up (non-finite positions), it starts again from `x` with half the step.
+///
+/// # Panics
+/// If the step `dt` is above the stable one.
+#[allow(clippy::too_many_arguments)] // the static problem is these things; a struct adds nothing
+pub fn relax(
+    model: &TetModel,
+    topo: &TetTopology,
+    ff: &TensorMassForceField,
+    penalty: Option<&Incompressibility>,
+    fixed: &FixedNodes,
+    prescribed: &Prescribed,
+    dt: f64,
+    x: &mut [Vec3],
+    settings: RelaxSettings,
+) -> RelaxReport {
+    let start = x.to_vec();
+    let mut dt = dt;
+    for _ in 0..ATTEMPTS {
+        x.copy_from_slice(&start);
+        let report = attempt(model, topo, ff, penalty, fixed, prescribed, dt, x, settings);
+        if x.iter().flatten().all(|c| c.is_finite()) {
+            return report;
+        }
+        dt *= 0.5;
+    }
+    RelaxReport { steps: 0, dt, residual: f64::INFINITY, converged: false }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn attempt(
+    model: &TetModel,
+    topo: &TetTopology,
+    ff: &TensorMassForceField,
+    penalty: Option<&Incompressibility>,
+    fixed: &FixedNodes,
+    prescribed: &Prescribed,
+    dt: f64,
+    x: &mut [Vec3],
+    settings: RelaxSettings,
+) -> RelaxReport {
+    let mut cd = CentralDifference::new(model, ff, fixed, x, dt, 0.0)
+        .expect("relaxation runs at or below the stable step");
+    let n = x.len();
+    let mut kinetic_before = 0.0;
+    let mut residual = f64::INFINITY;
+    for step in 1..=settings.max_steps {
+        let s = (step as f64 / prescribed.ramp_steps.max(1) as f64).min(1.0);
+        for &(v, target) in &prescribed.targets {
+            let rest = model.rest[v];
+            x[v] = std::array::from_fn(|k| rest[k] + s * (target[k] - rest[k]));
+        }
+        cd.step(model, topo, ff, penalty, fixed, &[], x);
+        if step % 50 == 0 && !x.iter().flatten().all(|c| c.is_finite()) {
+            return RelaxReport { steps: step, dt, residual: f64::INFINITY, converged: false };
+        }
+        let v = cd.velocities(x);
+        let kinetic: f64 = v
+            .iter()
+            .zip(&model.lumped_mass)
+            .map(|(v, m)| m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+            .sum();
+        if kinetic < kinetic_before {
+            cd.stop(x);
+            kinetic_before = 0.0;
+        } else {
+            kinetic_before = kinetic;
+        }
+        if s >= 1.0 && step % 50 == 0 {
+            let mut f = vec![[0.0; 3]; n];
+            ff.add_forces(model, x, &mut f);
+            if let Some(p) = penalty {
+                p.add_forces(model, |t| topo.is_alive(t), x, &mut f);
+            }
+            let (mut free, mut held) = (0.0f64, 0.0f64);
+            for (i, fi) in f.iter().enumerate() {
+                let m = fi.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+                if fixed.is_fixed(i) { held = held.max(m) } else { free = free.max(m) }
+            }
+            residual = free / held.max(f64::MIN_POSITIVE);
+            if residual <= settings.tolerance {
+                return RelaxReport { steps: step, dt, residual, converged: true };
+            }
+        }
+    }
+    RelaxReport { steps: settings.max_steps, dt, residual, converged: false }
+}

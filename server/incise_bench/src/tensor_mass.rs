@@ -501,7 +501,7 @@ pub fn run(args: &TensorMassArgs) -> anyhow::Result<()> {
     println!(
         "Adaptive non-linearity on the liver ({} tets, threshold {:.1} mm = {:.0} % of its length): \
          {:.0} vs {:.0} steps/s for full SVK, speed-up {:.2}× (paper: 2.5×); {} of {} vertices non-linear; \
-         displacement difference {:.2} % of the largest displacement",
+         displacement difference {:.2e} of the largest displacement",
         adaptive.tets,
         1e3 * adaptive.threshold_m,
         100.0 * args.threshold,
@@ -510,7 +510,7 @@ pub fn run(args: &TensorMassArgs) -> anyhow::Result<()> {
         adaptive.speedup,
         adaptive.nonlinear_vertices,
         adaptive.vertices,
-        100.0 * adaptive.displacement_error
+        adaptive.displacement_error
     );
     if args.json {
         println!(

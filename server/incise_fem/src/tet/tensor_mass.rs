@@ -248,6 +248,24 @@ const PARTS: usize = 2;
 /// more than half the work).
 const PARALLEL_TERMS: usize = 20_000;
 
+/// Term indices to visit (see [`TensorMassForceField::terms`]).
+enum Terms<'a> {
+    All(std::ops::Range<usize>),
+    Active(std::slice::Iter<'a, u32>),
+}
+
+impl Iterator for Terms<'_> {
+    type Item = usize;
+
+    #[inline]
+    fn next(&mut self) -> Option<usize> {
+        match self {
+            Terms::All(r) => r.next(),
+            Terms::Active(it) => it.next().map(|&i| i as usize),
+        }
+    }
+}
+
 /// Indices of part `part` of `0..n`.
 fn part_range(n: usize, part: usize) -> std::ops::Range<usize> {
     let size = n.div_ceil(PARTS);
@@ -413,23 +431,20 @@ impl TensorMassForceField {
         }
     }
 
-    /// Calls `body(i)` for the terms of `table` (0 cubic, 1 quartic) in part `part`, in table
-    /// order: all of them, or with adaptive non-linearity only those touching a non-linear vertex.
-    #[inline]
-    fn for_terms(&self, table: usize, part: usize, mut body: impl FnMut(usize)) {
+    /// The terms of `table` (0 cubic, 1 quartic) in part `part`, in table order: all of them,
+    /// or with adaptive non-linearity only those touching a non-linear vertex.
+    fn terms(&self, table: usize, part: usize) -> Terms<'_> {
         let n = if table == 0 { self.cubic.keys.len() } else { self.quartic.keys.len() };
         let range = part_range(n, part);
         match &self.adaptive {
-            None => range.for_each(body),
+            None => Terms::All(range),
             Some(a) => {
                 // The active terms of the same part as without adaptivity, so that with every
                 // vertex non-linear the sums are the full model's, bit for bit.
                 let active = &a.active[table];
                 let lo = active.partition_point(|&i| (i as usize) < range.start);
                 let hi = active.partition_point(|&i| (i as usize) < range.end);
-                for &i in &active[lo..hi] {
-                    body(i as usize);
-                }
+                Terms::Active(active[lo..hi].iter())
             }
         }
     }
@@ -456,20 +471,20 @@ impl TensorMassForceField {
         // ∂W/∂(pair product), accumulated term by term.
         let mut g = vec![0.0; pairs.len()];
         // (Uⱼ · c) Pₖₗ: ∂/∂Uⱼ = c Pₖₗ, ∂/∂Pₖₗ = Uⱼ · c.
-        self.for_terms(0, part, |i| {
+        for i in self.terms(0, part) {
             let j = self.cubic.keys[i][0] as usize;
             let c = &self.cubic.values[i];
             let kl = self.cubic_pair[i] as usize;
             sub(&mut out[j], *c, pairs[kl]);
             g[kl] += dot(&u[j], c);
-        });
+        }
         // d P₁ P₂: ∂/∂P₁ = d P₂, ∂/∂P₂ = d P₁.
-        self.for_terms(1, part, |i| {
+        for i in self.terms(1, part) {
             let [p1, p2] = self.quartic_pairs[i].map(|p| p as usize);
             let d = self.quartic.values[i];
             g[p1] += d * pairs[p2];
             g[p2] += d * pairs[p1];
-        });
+        }
         // ∂Pₐₐ/∂Uₐ = 2Uₐ; ∂Pₐᵦ/∂Uₐ = Uᵦ.
         let vertices = u.len();
         for (a, &ga) in g[..vertices].iter().enumerate() {
@@ -502,7 +517,7 @@ impl TensorMassForceField {
             add(&mut out[lo], mul_vec(m, &v[hi]), 1.0);
             add(&mut out[hi], mul_transpose_vec(m, &v[lo]), 1.0);
         }
-        self.for_terms(0, part, |i| {
+        for i in self.terms(0, part) {
             let [j, k, l] = self.cubic.keys[i].map(|x| x as usize);
             let c = &self.cubic.values[i];
             let ujc = dot(&u[j], c);
@@ -513,8 +528,8 @@ impl TensorMassForceField {
             add(&mut out[k], v[l], ujc);
             add(&mut out[l], u[k], djc);
             add(&mut out[l], v[k], ujc);
-        });
-        self.for_terms(1, part, |i| {
+        }
+        for i in self.terms(1, part) {
             let [a, b, c, e] = self.quartic.keys[i].map(|x| x as usize);
             let d = self.quartic.values[i];
             let (s1, s2) = (d * dot(&u[a], &u[b]), d * dot(&u[c], &u[e]));
@@ -528,7 +543,7 @@ impl TensorMassForceField {
             add(&mut out[c], v[e], s1);
             add(&mut out[e], u[c], ds1);
             add(&mut out[e], v[c], s1);
-        });
+        }
     }
 
     /// Turns adaptive non-linearity (paper 2 §6) on: a vertex becomes non-linear when its
@@ -605,14 +620,14 @@ impl TensorMassForceField {
             w += dot(&u[lo as usize], &mul_vec(m, &u[hi as usize]));
         }
         for part in 0..PARTS {
-            self.for_terms(0, part, |i| {
+            for i in self.terms(0, part) {
                 let [j, k, l] = self.cubic.keys[i].map(|x| x as usize);
                 w += dot(&u[j], &self.cubic.values[i]) * dot(&u[k], &u[l]);
-            });
-            self.for_terms(1, part, |i| {
+            }
+            for i in self.terms(1, part) {
                 let [a, b, c, e] = self.quartic.keys[i].map(|x| x as usize);
                 w += self.quartic.values[i] * dot(&u[a], &u[b]) * dot(&u[c], &u[e]);
-            });
+            }
         }
         w
     }

@@ -140,6 +140,19 @@ impl<const N: usize, T: Copy + Default> TermTable<N, T> {
         table
     }
 
+    /// Adds one contributor's `value` to `key` (a key of the table).
+    fn add(&mut self, key: &[u32; N], value: T, add: impl Fn(&mut T, &T)) {
+        let i = self.index[key] as usize;
+        self.contributors[i] += 1;
+        add(&mut self.values[i], &value);
+    }
+
+    /// Sets every value and count to zero (no contributor).
+    fn clear(&mut self) {
+        self.values.fill(T::default());
+        self.contributors.fill(0);
+    }
+
     /// Subtracts one contributor's `value` from `key` (zero exactly when none is left).
     fn remove(&mut self, key: &[u32; N], value: T, sub: impl Fn(&mut T, &T)) {
         let i = self.index[key] as usize;
@@ -171,73 +184,21 @@ pub struct TensorMassForceField {
     adaptive: Option<AdaptiveState>,
 }
 
-/// Which vertices are non-linear, and the terms that touch one of them (kept current as
-/// vertices switch, so the force loops visit only those).
+/// Adaptive non-linearity (paper 2 §6): which vertices are non-linear, and which tetrahedra
+/// (those with a non-linear vertex) have their cubic and quartic terms in the tables.
 #[derive(Clone, Debug)]
 struct AdaptiveState {
     threshold: f64,
     hysteresis: f64,
     flags: Vec<bool>,
-    /// Per table (0 cubic, 1 quartic): the terms of each vertex, the non-linear vertices of each
-    /// term, and the active terms in table order.
-    of_vertex: [Vec<Vec<u32>>; 2],
-    count: [Vec<u8>; 2],
+    /// Tetrahedra of each vertex.
+    vertex_tets: Vec<Vec<u32>>,
+    /// Non-linear vertices of each tetrahedron.
+    tet_count: Vec<u8>,
+    /// Tetrahedra whose non-linear state changed since the tables were last updated.
+    changed: Vec<u32>,
+    /// Per table (0 cubic, 1 quartic): the terms with a contributor, in table order.
     active: [Vec<u32>; 2],
-    dirty: bool,
-}
-
-impl AdaptiveState {
-    fn new<const A: usize, const B: usize>(
-        threshold: f64,
-        hysteresis: f64,
-        vertices: usize,
-        cubic: &[[u32; A]],
-        quartic: &[[u32; B]],
-    ) -> Self {
-        fn incidence<const N: usize>(vertices: usize, keys: &[[u32; N]]) -> Vec<Vec<u32>> {
-            let mut of = vec![Vec::new(); vertices];
-            for (i, key) in keys.iter().enumerate() {
-                let mut distinct = key.to_vec();
-                distinct.sort_unstable();
-                distinct.dedup();
-                for v in distinct {
-                    of[v as usize].push(i as u32);
-                }
-            }
-            of
-        }
-        Self {
-            threshold,
-            hysteresis,
-            flags: vec![false; vertices],
-            of_vertex: [incidence(vertices, cubic), incidence(vertices, quartic)],
-            count: [vec![0; cubic.len()], vec![0; quartic.len()]],
-            active: [Vec::new(), Vec::new()],
-            dirty: false,
-        }
-    }
-
-    fn switch(&mut self, v: usize, on: bool) {
-        self.flags[v] = on;
-        for table in 0..2 {
-            for &t in &self.of_vertex[table][v] {
-                let c = &mut self.count[table][t as usize];
-                *c = if on { *c + 1 } else { *c - 1 };
-            }
-        }
-        self.dirty = true;
-    }
-
-    fn rebuild(&mut self) {
-        if self.dirty {
-            for table in 0..2 {
-                let count = &self.count[table];
-                self.active[table] =
-                    (0..count.len() as u32).filter(|&i| count[i as usize] > 0).collect();
-            }
-            self.dirty = false;
-        }
-    }
 }
 
 /// The term tables are evaluated in this many fixed parts (each into its own buffer, summed in
@@ -357,15 +318,29 @@ impl TensorMassForceField {
                 add3(&mut self.edge_b[*e as usize], m, -1.0);
             }
         }
-        for (key, c) in &terms.cubic {
-            self.cubic.remove(key, *c, |a, b| {
-                for r in 0..3 {
-                    a[r] -= b[r];
-                }
-            });
+        // Adaptive: a linear tetrahedron's cubic and quartic terms are not in the tables.
+        let in_tables = self.adaptive.as_ref().is_none_or(|a| a.tet_count[t] > 0);
+        if in_tables {
+            for (key, c) in &terms.cubic {
+                self.cubic.remove(key, *c, |a, b| {
+                    for r in 0..3 {
+                        a[r] -= b[r];
+                    }
+                });
+            }
+            for (key, d) in &terms.quartic {
+                self.quartic.remove(key, *d, |a, b| *a -= b);
+            }
         }
-        for (key, d) in &terms.quartic {
-            self.quartic.remove(key, *d, |a, b| *a -= b);
+        if let Some(a) = self.adaptive.as_mut() {
+            a.active = [
+                (0..self.cubic.keys.len() as u32)
+                    .filter(|&i| self.cubic.contributors[i as usize] > 0)
+                    .collect(),
+                (0..self.quartic.keys.len() as u32)
+                    .filter(|&i| self.quartic.contributors[i as usize] > 0)
+                    .collect(),
+            ];
         }
         true
     }
@@ -383,8 +358,8 @@ impl TensorMassForceField {
     }
 
     /// `f += elastic forces` at positions `x` (rest positions from `model`). With adaptive
-    /// non-linearity on, a cubic or quartic term counts only where one of its vertices is
-    /// non-linear ([`TensorMassForceField::update_adaptive`]).
+    /// non-linearity on, the cubic and quartic terms are those of the non-linear tetrahedra
+    /// ([`TensorMassForceField::update_adaptive`]).
     ///
     /// The non-linear terms are products of the pair products `Uₐ · Uᵦ` over vertices (`a = b`)
     /// and edges: those are computed once, each term adds its coefficient to the pairs it
@@ -517,17 +492,18 @@ impl TensorMassForceField {
             add(&mut out[lo], mul_vec(m, &v[hi]), 1.0);
             add(&mut out[hi], mul_transpose_vec(m, &v[lo]), 1.0);
         }
+        let mut add_on = |v: usize, w: Vec3, scale: f64| add(&mut out[v], w, scale);
         for i in self.terms(0, part) {
             let [j, k, l] = self.cubic.keys[i].map(|x| x as usize);
             let c = &self.cubic.values[i];
             let ujc = dot(&u[j], c);
             let dkl = dot(&v[k], &u[l]) + dot(&u[k], &v[l]);
             let djc = dot(&v[j], c);
-            add(&mut out[j], *c, dkl);
-            add(&mut out[k], u[l], djc);
-            add(&mut out[k], v[l], ujc);
-            add(&mut out[l], u[k], djc);
-            add(&mut out[l], v[k], ujc);
+            add_on(j, *c, dkl);
+            add_on(k, u[l], djc);
+            add_on(k, v[l], ujc);
+            add_on(l, u[k], djc);
+            add_on(l, v[k], ujc);
         }
         for i in self.terms(1, part) {
             let [a, b, c, e] = self.quartic.keys[i].map(|x| x as usize);
@@ -535,34 +511,50 @@ impl TensorMassForceField {
             let (s1, s2) = (d * dot(&u[a], &u[b]), d * dot(&u[c], &u[e]));
             let ds1 = d * (dot(&v[a], &u[b]) + dot(&u[a], &v[b]));
             let ds2 = d * (dot(&v[c], &u[e]) + dot(&u[c], &v[e]));
-            add(&mut out[a], u[b], ds2);
-            add(&mut out[a], v[b], s2);
-            add(&mut out[b], u[a], ds2);
-            add(&mut out[b], v[a], s2);
-            add(&mut out[c], u[e], ds1);
-            add(&mut out[c], v[e], s1);
-            add(&mut out[e], u[c], ds1);
-            add(&mut out[e], v[c], s1);
+            add_on(a, u[b], ds2);
+            add_on(a, v[b], s2);
+            add_on(b, u[a], ds2);
+            add_on(b, v[a], s2);
+            add_on(c, u[e], ds1);
+            add_on(c, v[e], s1);
+            add_on(e, u[c], ds1);
+            add_on(e, v[c], s1);
         }
     }
 
     /// Turns adaptive non-linearity (paper 2 §6) on: a vertex becomes non-linear when its
     /// displacement exceeds `threshold` (m) and linear again below `(1 − hysteresis)·threshold`,
-    /// so vertices near the threshold do not flicker. A cubic or quartic term counts while one of
-    /// its vertices is non-linear. All start linear; call
-    /// [`TensorMassForceField::update_adaptive`] every step.
-    pub fn enable_adaptive(&mut self, threshold: f64, hysteresis: f64) {
-        self.adaptive = Some(AdaptiveState::new(
+    /// so vertices near the threshold do not flicker. A tetrahedron with a non-linear vertex is
+    /// St Venant-Kirchhoff, the others linear: its cubic and quartic terms are added to the
+    /// tables when it turns non-linear and subtracted when it turns back (the removal mechanism of
+    /// eq. 10), so the forces always derive from the energy of the current mix, which is bounded
+    /// below. All start linear; call [`TensorMassForceField::update_adaptive`] every step.
+    pub fn enable_adaptive(&mut self, model: &TetModel, threshold: f64, hysteresis: f64) {
+        let mut vertex_tets = vec![Vec::new(); self.vertex_b.len()];
+        for (t, tet) in model.tets.iter().enumerate() {
+            for &v in tet {
+                vertex_tets[v as usize].push(t as u32);
+            }
+        }
+        self.cubic.clear();
+        self.quartic.clear();
+        self.adaptive = Some(AdaptiveState {
             threshold,
-            hysteresis.clamp(0.0, 1.0),
-            self.vertex_b.len(),
-            &self.cubic.keys,
-            &self.quartic.keys,
-        ));
+            hysteresis: hysteresis.clamp(0.0, 1.0),
+            flags: vec![false; self.vertex_b.len()],
+            vertex_tets,
+            tet_count: vec![0; model.tets.len()],
+            changed: Vec::new(),
+            active: [Vec::new(), Vec::new()],
+        });
     }
 
-    /// Updates which vertices are non-linear from positions `x`; returns how many are.
-    pub fn update_adaptive(&mut self, model: &TetModel, x: &[Vec3]) -> usize {
+    /// Updates which vertices (and so which live tetrahedra of `topo`) are non-linear from
+    /// positions `x`, and the tables with them; returns how many vertices are non-linear.
+    ///
+    /// # Panics
+    /// Never: the adaptive state is checked first.
+    pub fn update_adaptive(&mut self, model: &TetModel, topo: &TetTopology, x: &[Vec3]) -> usize {
         let Some(state) = self.adaptive.as_mut() else {
             return self.nonlinear_count();
         };
@@ -570,14 +562,68 @@ impl TensorMassForceField {
         let down = (state.threshold * (1.0 - state.hysteresis)).powi(2);
         for (v, (p, r)) in x.iter().zip(&model.rest).enumerate() {
             let d2 = (0..3).map(|k| (p[k] - r[k]).powi(2)).sum::<f64>();
-            if d2 > up && !state.flags[v] {
-                state.switch(v, true);
-            } else if d2 < down && state.flags[v] {
-                state.switch(v, false);
+            let on = if d2 > up {
+                true
+            } else if d2 < down {
+                false
+            } else {
+                continue;
+            };
+            if on != state.flags[v] {
+                state.flags[v] = on;
+                for &t in &state.vertex_tets[v] {
+                    let c = &mut state.tet_count[t as usize];
+                    let was = *c > 0;
+                    *c = if on { *c + 1 } else { *c - 1 };
+                    if was != (*c > 0) {
+                        state.changed.push(t);
+                    }
+                }
             }
         }
-        state.rebuild();
-        state.flags.iter().filter(|&&f| f).count()
+        let count = state.flags.iter().filter(|&&f| f).count();
+        if state.changed.is_empty() {
+            return count;
+        }
+        let mut changed = std::mem::take(&mut state.changed);
+        changed.sort_unstable();
+        changed.dedup();
+        let switch_on: Vec<(u32, bool)> =
+            changed.iter().map(|&t| (t, state.tet_count[t as usize] > 0)).collect();
+        for (t, on) in switch_on {
+            if topo.is_alive(t as usize) {
+                self.switch_tet(model, topo, t as usize, on);
+            }
+        }
+        let state = self.adaptive.as_mut().expect("adaptive is on");
+        state.active = [
+            (0..self.cubic.keys.len() as u32)
+                .filter(|&i| self.cubic.contributors[i as usize] > 0)
+                .collect(),
+            (0..self.quartic.keys.len() as u32)
+                .filter(|&i| self.quartic.contributors[i as usize] > 0)
+                .collect(),
+        ];
+        count
+    }
+
+    /// Adds (`on`) or subtracts tetrahedron `t`'s cubic and quartic terms.
+    fn switch_tet(&mut self, model: &TetModel, topo: &TetTopology, t: usize, on: bool) {
+        let terms = tet_terms(model, topo, t, Elasticity::StVenantKirchhoff);
+        for (key, c) in &terms.cubic {
+            if on {
+                self.cubic.add(key, *c, |a, b| (0..3).for_each(|r| a[r] += b[r]));
+            } else {
+                self.cubic.remove(key, *c, |a, b| (0..3).for_each(|r| a[r] -= b[r]));
+            }
+        }
+        for (key, d) in &terms.quartic {
+            if on {
+                self.quartic.add(key, *d, |a, b| *a += b);
+            } else {
+                self.quartic.remove(key, *d, |a, b| *a -= b);
+            }
+        }
     }
 
     /// Vertices currently non-linear (all for SVK without adaptivity, none for linear).

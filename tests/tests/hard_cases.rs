@@ -337,8 +337,8 @@ fn cutting_while_moving_keeps_the_simulation_sound() {
     let config = incise_sim::SceneConfig::from_toml(&text, "b1.toml").unwrap();
     let volume = config.procedural_volume().unwrap();
     let mut sim = incise_sim::Simulation::new(&config, &volume, "b1.toml").unwrap();
-    let dims = sim.grid().fine().dims();
-    let elements_before = sim.model().elements.len();
+    let dims = sim.grid().expect("a hexahedral scene").fine().dims();
+    let elements_before = sim.model().expect("a hexahedral scene").elements.len();
     let mut removed = 0;
     for step in 0..60u32 {
         let frame = sim.step();
@@ -352,13 +352,13 @@ fn cutting_while_moving_keeps_the_simulation_sound() {
             let changes =
                 sim.cut(&GridEdit { remove_voxels: column, sever_links: vec![] }).unwrap();
             removed += changes.voxels_removed;
-            assert_eq!(sim.model().node_count(), sim.state().x.len());
+            assert_eq!(sim.model().expect("a hexahedral scene").node_count(), sim.state().x.len());
         }
     }
     assert!(
-        removed > 0 && sim.model().elements.len() < elements_before,
+        removed > 0 && sim.model().expect("a hexahedral scene").elements.len() < elements_before,
         "the cuts removed material"
     );
-    let moved = max_displacement(sim.model(), &sim.state().x);
+    let moved = max_displacement(sim.model().expect("a hexahedral scene"), &sim.state().x);
     assert!(moved < 0.1, "the cut block moved {moved:e} m");
 }

@@ -26,11 +26,14 @@ fn every_committed_scene_builds() {
     assert!(names.len() >= 9, "{names:?}");
     for name in names {
         let sim = load(&name);
+        let (elements, nodes) = match (sim.model(), sim.tet()) {
+            (Some(m), _) => (m.elements.len(), m.node_count()),
+            (None, Some(t)) => (t.topology.live_count(), t.model.vertex_count()),
+            (None, None) => unreachable!("a scene is hexahedral or tetrahedral"),
+        };
         println!(
-            "{name:<18} level {} {:>6} elements {:>6} nodes {:>5} fixed",
+            "{name:<22} level {} {elements:>6} elements {nodes:>6} nodes {:>5} fixed",
             sim.config().level,
-            sim.model().elements.len(),
-            sim.model().node_count(),
             sim.fixed().count()
         );
         assert!(sim.fixed().count() > 0, "{name}: nothing is fixed");
@@ -46,15 +49,15 @@ fn scene_b1_steps_deterministically() {
         assert_eq!(fa.state_hash, fb.state_hash, "step {}", fa.index);
         assert!(fa.positions.iter().all(|p| p.iter().all(|c| c.is_finite())));
     }
-    assert_eq!(a.model().elements.len(), 140);
-    assert_eq!(a.model().node_count(), 240);
+    assert_eq!(a.model().expect("a hexahedral scene").elements.len(), 140);
+    assert_eq!(a.model().expect("a hexahedral scene").node_count(), 240);
 }
 
 #[test]
 fn cantilever_scene_reaches_beam_theory() {
     let mut sim = load("c_80x8x8.toml");
     let frame = sim.step();
-    let rest = &sim.model().rest;
+    let rest = &sim.model().expect("a hexahedral scene").rest;
     let tip: Vec<f64> = rest
         .iter()
         .zip(&frame.positions)
@@ -178,4 +181,101 @@ fn auto_model_keys_are_checked() {
     let volume = config.procedural_volume().unwrap();
     let err = Simulation::new(&config, &volume, "free.toml").err().expect("refused");
     assert!(err.to_string().contains("fixed"), "{err}");
+}
+
+/// `GOOD` as a tensor-mass scene (48 tetrahedra on 2 × 2 × 2 voxels).
+fn tensor_mass_scene(model_keys: &str, dt: &str) -> String {
+    GOOD.replace(
+        "[integrator]\nkind = \"implicit-euler\"\ndt = 0.001",
+        &format!("[model]\nkind = \"tensor-mass\"\n{model_keys}[integrator]\nkind = \"explicit\"\ndt = {dt}"),
+    )
+}
+
+#[test]
+fn tensor_mass_keys_are_checked() {
+    let ok = tensor_mass_scene("elasticity = \"svk\"\nincompressibility = 1e5\n", "1e-4");
+    let config = SceneConfig::from_toml(&ok, "tm.toml").unwrap();
+    assert!(config.tensor_mass.is_some_and(|t| t.incompressibility == Some(1e5)));
+    let e = error(&tensor_mass_scene("elasticity = \"neo-hookean\"\n", "1e-4"));
+    assert!(
+        e.to_string().contains("model.elasticity") && e.to_string().contains("neo-hookean"),
+        "{e}"
+    );
+    let e = error(
+        &tensor_mass_scene("", "1e-4").replace("kind = \"explicit\"", "kind = \"implicit-euler\""),
+    );
+    assert!(e.to_string().contains("integrator.kind") && e.to_string().contains("explicit"), "{e}");
+    let e = error(&tensor_mass_scene("adaptive_threshold = -1.0\n", "1e-4"));
+    assert!(e.to_string().contains("model.adaptive_threshold"), "{e}");
+    let e = error(&tensor_mass_scene("fibre_ratio = 2.0\n", "1e-4"));
+    assert!(
+        e.to_string().contains("model.fibre_ratio") && e.to_string().contains("model.fibre"),
+        "{e}"
+    );
+    let e = error(&GOOD.replace(
+        "[integrator]",
+        "[model]\nkind = \"corotational\"\nincompressibility = 1e5\n[integrator]",
+    ));
+    assert!(
+        e.to_string().contains("model.incompressibility") && e.to_string().contains("tensor-mass"),
+        "{e}"
+    );
+    // A step above the mesh's stable explicit step is refused when the scene is built.
+    let config = SceneConfig::from_toml(&tensor_mass_scene("", "0.5"), "tm.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    let err = Simulation::new(&config, &volume, "tm.toml").err().expect("refused");
+    assert!(
+        err.to_string().contains("integrator.dt")
+            && err.to_string().contains("stable explicit step"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_tensor_mass_scene_steps_cuts_and_reports_non_linear_vertices() {
+    let text = tensor_mass_scene("incompressibility = 1e5\nadaptive_threshold = 1e-4\n", "1e-4");
+    let config = SceneConfig::from_toml(&text, "tm.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    let mut a = Simulation::new(&config, &volume, "tm.toml").unwrap();
+    let mut b = Simulation::new(&config, &volume, "tm.toml").unwrap();
+    let tet = a.tet().expect("a tensor-mass scene");
+    assert_eq!(tet.topology.live_count(), 48);
+    println!("stable explicit step of the 48-tetrahedron block: {:.3e} s", tet.stable_dt);
+    assert!(a.model().is_none() && a.grid().is_none());
+    let mut last = None;
+    for _ in 0..200 {
+        let (fa, fb) = (a.step(), b.step());
+        assert_eq!(fa.state_hash, fb.state_hash, "step {}", fa.index);
+        assert!(fa.positions.iter().flatten().all(|c| c.is_finite()));
+        last = Some(fa);
+    }
+    let last = last.unwrap();
+    // Hanging under gravity, the bottom moves more than the 0.1 mm threshold.
+    assert!(last.counters.nonlinear_vertices > 0, "{:?}", last.counters);
+    assert!(last.counters.nonlinear_vertices < a.tet().unwrap().model.vertex_count());
+    // Removing voxel 0 removes its cell's 6 tetrahedra; an index beyond the volume is refused.
+    let edit = incise_grid::GridEdit { remove_voxels: vec![0], sever_links: vec![] };
+    a.cut(&edit).unwrap();
+    assert_eq!(a.tet().unwrap().topology.live_count(), 42);
+    let bad = incise_grid::GridEdit { remove_voxels: vec![8], sever_links: vec![] };
+    assert!(a.cut(&bad).is_err());
+    for _ in 0..50 {
+        assert!(a.step().positions.iter().flatten().all(|c| c.is_finite()));
+    }
+}
+
+#[test]
+fn the_liver_tensor_mass_scene_runs() {
+    let mut sim = load("liver_tensor_mass.toml");
+    let tet = sim.tet().expect("a tensor-mass scene");
+    println!(
+        "liver_tensor_mass: {} tetrahedra, {} vertices, stable step {:.3e} s",
+        tet.topology.live_count(),
+        tet.model.vertex_count(),
+        tet.stable_dt
+    );
+    for _ in 0..20 {
+        let f = sim.step();
+        assert!(f.positions.iter().flatten().all(|c| c.is_finite()));
+    }
 }

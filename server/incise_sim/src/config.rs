@@ -72,6 +72,24 @@ pub enum ModelKind {
     Linear,
     /// Corotational hexahedra.
     Corotational,
+    /// Paper 2's tensor-mass tetrahedra (6 per grid cell at `level`), explicit; its settings are
+    /// [`SceneConfig::tensor_mass`].
+    TensorMass,
+}
+
+/// `model.kind = "tensor-mass"`: the tetrahedral model's settings (`[model]` keys).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TensorMassSpec {
+    /// `model.elasticity`: `"svk"` (default) or `"linear"`.
+    pub elasticity: incise_fem::tet::Elasticity,
+    /// `model.incompressibility`: the penalty strength κ (Pa), none by default.
+    pub incompressibility: Option<f64>,
+    /// `model.adaptive_threshold`: displacement (m) above which a vertex is non-linear (paper 2
+    /// §6); none (every tetrahedron SVK) by default.
+    pub adaptive_threshold: Option<f64>,
+    /// `model.fibre` and `model.fibre_ratio`: a fibre direction for every tetrahedron and how
+    /// many times stiffer (λ and μ) the tissue is along it.
+    pub fibre: Option<([f64; 3], f64)>,
 }
 
 /// `model.kind = "auto"`: the grid level is chosen when the scene is built, as the coarsest level
@@ -152,6 +170,8 @@ pub struct SceneConfig {
     /// Set when `model.kind = "auto"`: `level` is then chosen by calibration (and `model` is
     /// corotational).
     pub auto_level: Option<AutoLevel>,
+    /// With `model.kind = "tensor-mass"`, its settings.
+    pub tensor_mass: Option<TensorMassSpec>,
     /// The integrator.
     pub integrator: IntegratorKind,
     /// Time step (s).
@@ -227,6 +247,16 @@ struct RawModel {
     max_error: Option<Spanned<f64>>,
     #[serde(default)]
     max_level: Option<Spanned<i64>>,
+    #[serde(default)]
+    elasticity: Option<Spanned<String>>,
+    #[serde(default)]
+    incompressibility: Option<Spanned<f64>>,
+    #[serde(default)]
+    adaptive_threshold: Option<Spanned<f64>>,
+    #[serde(default)]
+    fibre: Option<Spanned<[f64; 3]>>,
+    #[serde(default)]
+    fibre_ratio: Option<Spanned<f64>>,
 }
 
 #[derive(Deserialize)]
@@ -279,6 +309,75 @@ impl Checker<'_> {
             key: key.to_owned(),
             message: message.into(),
         }
+    }
+
+    /// The tensor-mass keys of `[model]`: read when `on`, refused (naming the key) otherwise.
+    fn tensor_mass(&self, m: &RawModel, on: bool) -> Result<Option<TensorMassSpec>, SceneError> {
+        if !on {
+            let stray = m
+                .elasticity
+                .as_ref()
+                .map(|v| (v.span(), "model.elasticity"))
+                .or_else(|| {
+                    m.incompressibility.as_ref().map(|v| (v.span(), "model.incompressibility"))
+                })
+                .or_else(|| {
+                    m.adaptive_threshold.as_ref().map(|v| (v.span(), "model.adaptive_threshold"))
+                })
+                .or_else(|| m.fibre.as_ref().map(|v| (v.span(), "model.fibre")))
+                .or_else(|| m.fibre_ratio.as_ref().map(|v| (v.span(), "model.fibre_ratio")));
+            return match stray {
+                Some((span, key)) => {
+                    Err(self.invalid(span, key, "applies only to `model.kind = \"tensor-mass\"`"))
+                }
+                None => Ok(None),
+            };
+        }
+        let elasticity = match m.elasticity.as_ref().map(|e| (e.span(), e.get_ref().as_str())) {
+            None | Some((_, "svk")) => incise_fem::tet::Elasticity::StVenantKirchhoff,
+            Some((_, "linear")) => incise_fem::tet::Elasticity::Linear,
+            Some((span, other)) => {
+                return Err(self.invalid(
+                    span,
+                    "model.elasticity",
+                    format!("is \"{other}\"; expected \"svk\" or \"linear\""),
+                ));
+            }
+        };
+        let incompressibility = m
+            .incompressibility
+            .as_ref()
+            .map(|v| self.positive(v, "model.incompressibility"))
+            .transpose()?;
+        let adaptive_threshold = m
+            .adaptive_threshold
+            .as_ref()
+            .map(|v| self.positive(v, "model.adaptive_threshold"))
+            .transpose()?;
+        let fibre = match (&m.fibre, &m.fibre_ratio) {
+            (None, None) => None,
+            (Some(f), ratio) => {
+                let d = *f.get_ref();
+                if !(d.iter().all(|x| x.is_finite()) && d.iter().any(|&x| x != 0.0)) {
+                    return Err(self.invalid(
+                        f.span(),
+                        "model.fibre",
+                        format!("{d:?} is not a direction"),
+                    ));
+                }
+                let r =
+                    ratio.as_ref().map_or(Ok(1.0), |r| self.positive(r, "model.fibre_ratio"))?;
+                Some((d, r))
+            }
+            (None, Some(r)) => {
+                return Err(self.invalid(
+                    r.span(),
+                    "model.fibre_ratio",
+                    "needs `model.fibre` (a direction)",
+                ));
+            }
+        };
+        Ok(Some(TensorMassSpec { elasticity, incompressibility, adaptive_threshold, fibre }))
     }
 
     fn positive(&self, v: &Spanned<f64>, key: &str) -> Result<f64, SceneError> {
@@ -432,22 +531,25 @@ impl SceneConfig {
             });
         }
         let mut auto_level = None;
+        let mut tensor_mass = None;
         let model = match &raw.model {
             None => ModelKind::Corotational,
             Some(m) => {
                 let kind = match m.kind.get_ref().as_str() {
                     "linear" => ModelKind::Linear,
                     "corotational" | "auto" => ModelKind::Corotational,
+                    "tensor-mass" => ModelKind::TensorMass,
                     other => {
                         return Err(c.invalid(
                             m.kind.span(),
                             "model.kind",
                             format!(
-                                "is \"{other}\"; expected \"linear\", \"corotational\" or \"auto\""
+                                "is \"{other}\"; expected \"linear\", \"corotational\", \"auto\" or \"tensor-mass\""
                             ),
                         ));
                     }
                 };
+                tensor_mass = c.tensor_mass(m, kind == ModelKind::TensorMass)?;
                 if m.kind.get_ref() == "auto" {
                     if let Some(l) = &raw.level {
                         return Err(c.invalid(
@@ -518,6 +620,13 @@ impl SceneConfig {
                 ));
             }
         };
+        if model == ModelKind::TensorMass && integrator != IntegratorKind::Explicit {
+            return Err(c.invalid(
+                i.kind.span(),
+                "integrator.kind",
+                "must be \"explicit\" with `model.kind = \"tensor-mass\"` (paper 2 integrates it explicitly)",
+            ));
+        }
         let dt = c.positive(&i.dt, "integrator.dt")?;
         if dt > 1.0 {
             return Err(c.invalid(
@@ -609,6 +718,7 @@ impl SceneConfig {
             materials,
             model,
             auto_level,
+            tensor_mass,
             integrator,
             dt,
             cg_tolerance,

@@ -1,12 +1,20 @@
-//! The simulation loop of one scene: the branched grid at the configured level, the hexahedral
-//! model and force field, fixed nodes, loads and the integrator, advanced one step per call.
+//! The simulation loop of one scene, advanced one step per call: either the branched grid at the
+//! configured level with the hexahedral model, force field and integrator, or (with
+//! `model.kind = "tensor-mass"`) the tetrahedralised volume with paper 2's tensor-mass model and
+//! its explicit integrator. Fixed regions and loads apply to either.
 
 use crate::calibration::{Calibration, calibrate};
-use crate::config::{FixedSpec, IntegratorKind, ModelKind, SceneConfig, SceneError, VolumeSpec};
+use crate::config::{
+    FixedSpec, IntegratorKind, ModelKind, SceneConfig, SceneError, TensorMassSpec, VolumeSpec,
+};
 use incise_fem::cg::CgSettings;
 use incise_fem::integrate::{
     BackwardEuler, Loads, Rayleigh, State, explicit_step, stable_dt, static_solve,
 };
+use incise_fem::tet::element::Fibre;
+use incise_fem::tet::explicit::CentralDifference;
+use incise_fem::tet::incompressible::Incompressibility;
+use incise_fem::tet::{Lame, TensorMassForceField, TetMaterial, TetMesh, TetModel, TetTopology};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::{
     BranchedGrid, EditError, GridChanges, GridEdit, LabelFilter, LabelVolume, MaterialTable,
@@ -23,6 +31,9 @@ pub struct StageCounters {
     pub solver_iterations: usize,
     /// Final relative residual of the step's solve.
     pub solver_residual: f64,
+    /// Tensor-mass scenes: vertices using non-linear elasticity (all for SVK, none for linear,
+    /// those past the threshold with adaptive non-linearity).
+    pub nonlinear_vertices: usize,
 }
 
 /// The result of one step.
@@ -46,17 +57,49 @@ enum Integrator {
     Static { tolerance: f64 },
 }
 
+/// The hexahedral mechanics of a scene.
+struct HexBody {
+    grid: BranchedGrid,
+    model: HexModel,
+    force_field: HexForceField,
+    loads: Loads,
+    integrator: Integrator,
+}
+
+/// The tensor-mass mechanics of a scene (`model.kind = "tensor-mass"`).
+pub struct TetBody {
+    /// The tetrahedralised volume (6 tetrahedra per grid cell).
+    pub mesh: TetMesh,
+    /// Rest data per tetrahedron.
+    pub model: TetModel,
+    /// Live tetrahedra and the boundary.
+    pub topology: TetTopology,
+    /// The stiffness tensors.
+    pub force_field: TensorMassForceField,
+    /// The incompressibility penalty, when configured.
+    pub penalty: Option<Incompressibility>,
+    /// The largest stable step of the mesh and material (s); the scene's dt is at most this.
+    pub stable_dt: f64,
+    /// Grid cell (at the scene's level) of each group of 6 tetrahedra.
+    cells: Vec<[usize; 3]>,
+    /// Voxels per axis of the (filtered, strided) volume.
+    voxel_dims: [usize; 3],
+    external: Vec<Vec3>,
+    integrator: CentralDifference,
+}
+
+enum Body {
+    Hex(Box<HexBody>),
+    Tet(Box<TetBody>),
+}
+
 /// A running scene.
 pub struct Simulation {
     config: SceneConfig,
     calibration: Option<Calibration>,
-    grid: BranchedGrid,
-    model: HexModel,
-    force_field: HexForceField,
+    body: Body,
     fixed: FixedNodes,
-    loads: Loads,
     state: State,
-    integrator: Integrator,
     index: u64,
 }
 
@@ -95,14 +138,17 @@ pub(crate) fn fixed_nodes(
     grid: &BranchedGrid,
     model: &HexModel,
 ) -> FixedNodes {
-    let tolerance = 1e-9 * grid.element_size().iter().copied().fold(0.0, f64::max);
-    let mut fixed = FixedNodes::none(model.node_count());
+    fixed_at(config, &model.rest, grid.element_size())
+}
+
+/// The nodes at `rest` in the scene's fixed regions (`size`: the element size, for tolerances).
+fn fixed_at(config: &SceneConfig, rest: &[Vec3], size: Vec3) -> FixedNodes {
+    let tolerance = 1e-9 * size.iter().copied().fold(0.0, f64::max);
+    let mut fixed = FixedNodes::none(rest.len());
     for f in &config.fixed {
         let region = match f {
-            FixedSpec::Plane { axis, value } => {
-                FixedNodes::plane(&model.rest, *axis, *value, tolerance)
-            }
-            FixedSpec::Box { min, max } => FixedNodes::aabb(&model.rest, *min, *max),
+            FixedSpec::Plane { axis, value } => FixedNodes::plane(rest, *axis, *value, tolerance),
+            FixedSpec::Box { min, max } => FixedNodes::aabb(rest, *min, *max),
         };
         fixed = fixed.union(&region);
     }
@@ -111,11 +157,16 @@ pub(crate) fn fixed_nodes(
 
 /// Gravity plus the scene's patch loads spread over the model's nodes.
 pub(crate) fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Loads, String> {
-    let mut nodal = vec![[0.0; 3]; model.node_count()];
+    Ok(Loads { gravity: config.gravity, nodal: patch_forces(config, &model.rest)? })
+}
+
+/// The scene's patch loads spread over the nodes at `rest` (N per node).
+fn patch_forces(config: &SceneConfig, rest: &[Vec3]) -> Result<Vec<Vec3>, String> {
+    let mut nodal = vec![[0.0; 3]; rest.len()];
     for (k, load) in config.loads.iter().enumerate() {
-        let patch: Vec<usize> = (0..model.node_count())
+        let patch: Vec<usize> = (0..rest.len())
             .filter(|&n| {
-                (0..3).map(|a| (model.rest[n][a] - load.centre[a]).powi(2)).sum::<f64>().sqrt()
+                (0..3).map(|a| (rest[n][a] - load.centre[a]).powi(2)).sum::<f64>().sqrt()
                     <= load.radius
             })
             .collect();
@@ -132,7 +183,7 @@ pub(crate) fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Load
             }
         }
     }
-    Ok(Loads { gravity: config.gravity, nodal })
+    Ok(nodal)
 }
 
 impl Simulation {
@@ -168,12 +219,25 @@ impl Simulation {
             None => None,
         };
         let config = &config;
+        if let (ModelKind::TensorMass, Some(spec)) = (config.model, config.tensor_mass) {
+            let (body, fixed) = tet_body(config, &spec, &volume, &table).map_err(build)?;
+            let state =
+                State { x: body.model.rest.clone(), v: vec![[0.0; 3]; body.model.vertex_count()] };
+            return Ok(Self {
+                config: config.clone(),
+                calibration,
+                body: Body::Tet(Box::new(body)),
+                fixed,
+                state,
+                index: 0,
+            });
+        }
         let grid =
             BranchedGrid::build(&volume, &table, config.level).map_err(|e| build(e.to_string()))?;
         let model = HexModel::from_grid(&grid);
         let formulation = match config.model {
             ModelKind::Linear => Formulation::Linear,
-            ModelKind::Corotational => Formulation::Corotational,
+            ModelKind::Corotational | ModelKind::TensorMass => Formulation::Corotational,
         };
         let force_field = HexForceField::new(&model, formulation);
         let fixed = fixed_nodes(config, &grid, &model);
@@ -207,13 +271,9 @@ impl Simulation {
         Ok(Self {
             config: config.clone(),
             calibration,
-            grid,
-            model,
-            force_field,
+            body: Body::Hex(Box::new(HexBody { grid, model, force_field, loads, integrator })),
             fixed,
-            loads,
             state,
-            integrator,
             index: 0,
         })
     }
@@ -222,13 +282,33 @@ impl Simulation {
     pub fn step(&mut self) -> Frame {
         let start = Instant::now();
         let mut counters = StageCounters::default();
-        match &mut self.integrator {
+        let hex = match &mut self.body {
+            Body::Hex(hex) => hex,
+            Body::Tet(tet) => {
+                if tet.force_field.elasticity() == incise_fem::tet::Elasticity::StVenantKirchhoff {
+                    counters.nonlinear_vertices =
+                        tet.force_field.update_adaptive(&tet.model, &tet.topology, &self.state.x);
+                }
+                tet.integrator.step(
+                    &tet.model,
+                    &tet.topology,
+                    &tet.force_field,
+                    tet.penalty.as_ref(),
+                    &self.fixed,
+                    &tet.external,
+                    &mut self.state.x,
+                );
+                self.state.v = tet.integrator.velocities(&self.state.x);
+                return self.finish(start, counters);
+            }
+        };
+        match &mut hex.integrator {
             Integrator::Implicit(be) => {
                 let r = be.step(
-                    &self.model,
-                    &mut self.force_field,
+                    &hex.model,
+                    &mut hex.force_field,
                     &self.fixed,
-                    &self.loads,
+                    &hex.loads,
                     &mut self.state,
                 );
                 counters.solver_iterations = r.iterations;
@@ -236,10 +316,10 @@ impl Simulation {
             }
             Integrator::Explicit { dt, alpha } => {
                 explicit_step(
-                    &self.model,
-                    &mut self.force_field,
+                    &hex.model,
+                    &mut hex.force_field,
                     &self.fixed,
-                    &self.loads,
+                    &hex.loads,
                     *alpha,
                     *dt,
                     &mut self.state,
@@ -247,10 +327,10 @@ impl Simulation {
             }
             Integrator::Static { tolerance } => {
                 let r = static_solve(
-                    &self.model,
-                    &mut self.force_field,
+                    &hex.model,
+                    &mut hex.force_field,
                     &self.fixed,
-                    &self.loads,
+                    &hex.loads,
                     &mut self.state.x,
                     *tolerance,
                     50,
@@ -259,6 +339,10 @@ impl Simulation {
                 counters.solver_residual = r.relative_residual;
             }
         }
+        self.finish(start, counters)
+    }
+
+    fn finish(&mut self, start: Instant, mut counters: StageCounters) -> Frame {
         self.index += 1;
         counters.step_ns = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
         Frame {
@@ -275,13 +359,24 @@ impl Simulation {
     /// that node's; any other new node takes its element's mean displacement and velocity.
     /// Surviving and split-off elements keep their rotation. Fixed regions and patch loads are
     /// re-applied to the new nodes.
+    ///
+    /// In a tensor-mass scene there is no grid: the tetrahedra of every cell holding a removed
+    /// voxel are removed (their stiffness subtracted, paper 2 §3.2), severed links are not
+    /// supported there, and the change list returned is empty (see [`Simulation::tet`]).
     pub fn cut(&mut self, edit: &GridEdit) -> Result<GridChanges, EditError> {
-        let changes = self.grid.apply(edit)?;
+        let hex = match &mut self.body {
+            Body::Hex(hex) => hex,
+            Body::Tet(tet) => {
+                remove_voxel_cells(tet, &self.config, edit)?;
+                return Ok(GridChanges::default());
+            }
+        };
+        let changes = hex.grid.apply(edit)?;
         if changes == GridChanges::default() {
             return Ok(changes);
         }
-        let model = HexModel::from_grid(&self.grid);
-        let old = &self.model;
+        let model = HexModel::from_grid(&hex.grid);
+        let old = &hex.model;
         // Grid node id → index in the old model (ids beyond the old ones are new nodes).
         let mut old_index =
             vec![u32::MAX; old.grid_node.iter().map(|&g| g as usize + 1).max().unwrap_or(0)];
@@ -331,20 +426,20 @@ impl Simulation {
         }
         let origin_of: std::collections::BTreeMap<u32, u32> =
             changes.top.elements_added.iter().filter_map(|&(id, o)| o.map(|o| (id, o))).collect();
-        self.force_field = self.force_field.remapped(old, &model, |g| origin_of.get(&g).copied());
-        self.fixed = fixed_nodes(&self.config, &self.grid, &model);
+        hex.force_field = hex.force_field.remapped(old, &model, |g| origin_of.get(&g).copied());
+        self.fixed = fixed_nodes(&self.config, &hex.grid, &model);
         for (i, s) in state.v.iter_mut().enumerate() {
             if self.fixed.is_fixed(i) {
                 *s = [0.0; 3];
             }
         }
         // A patch that lost all its nodes simply stops pulling.
-        self.loads = patch_loads(&self.config, &model)
+        hex.loads = patch_loads(&self.config, &model)
             .unwrap_or(Loads { gravity: self.config.gravity, nodal: Vec::new() });
-        if let Integrator::Implicit(be) = &mut self.integrator {
+        if let Integrator::Implicit(be) = &mut hex.integrator {
             be.reset_warm_start();
         }
-        self.model = model;
+        hex.model = model;
         self.state = state;
         Ok(changes)
     }
@@ -361,19 +456,34 @@ impl Simulation {
         self.calibration.as_ref()
     }
 
-    /// The grid.
+    /// The grid (`None` in a tensor-mass scene).
     #[must_use]
-    pub fn grid(&self) -> &BranchedGrid {
-        &self.grid
+    pub fn grid(&self) -> Option<&BranchedGrid> {
+        match &self.body {
+            Body::Hex(hex) => Some(&hex.grid),
+            Body::Tet(_) => None,
+        }
     }
 
-    /// The mechanical model.
+    /// The hexahedral model (`None` in a tensor-mass scene).
     #[must_use]
-    pub fn model(&self) -> &HexModel {
-        &self.model
+    pub fn model(&self) -> Option<&HexModel> {
+        match &self.body {
+            Body::Hex(hex) => Some(&hex.model),
+            Body::Tet(_) => None,
+        }
     }
 
-    /// The current state.
+    /// The tensor-mass mechanics (`None` in a hexahedral scene).
+    #[must_use]
+    pub fn tet(&self) -> Option<&TetBody> {
+        match &self.body {
+            Body::Tet(tet) => Some(tet),
+            Body::Hex(_) => None,
+        }
+    }
+
+    /// The current state (node or vertex positions and velocities).
     #[must_use]
     pub fn state(&self) -> &State {
         &self.state
@@ -384,4 +494,100 @@ impl Simulation {
     pub fn fixed(&self) -> &FixedNodes {
         &self.fixed
     }
+}
+
+/// Builds the tensor-mass mechanics of a scene and its fixed vertices.
+fn tet_body(
+    config: &SceneConfig,
+    spec: &TensorMassSpec,
+    volume: &LabelVolume,
+    table: &MaterialTable,
+) -> Result<(TetBody, FixedNodes), String> {
+    let (mesh, cells) = incise_fem::tet::generate::from_volume_with_cells(volume, config.level)
+        .map_err(|e| format!("tetrahedralising the volume at level {}: {e}", config.level))?;
+    let material = |region: u32| -> TetMaterial {
+        let m = u16::try_from(region)
+            .ok()
+            .and_then(|l| table.get(l).copied())
+            .unwrap_or_else(incise_grid::Material::liver);
+        let lame = Lame::from_young_poisson(m.youngs_modulus, m.poisson_ratio);
+        TetMaterial {
+            lame,
+            density: m.density,
+            fibre: spec.fibre.map(|(direction, ratio)| Fibre {
+                direction,
+                lame_along: Lame { lambda: ratio * lame.lambda, mu: ratio * lame.mu },
+            }),
+        }
+    };
+    let model = TetModel::new(&mesh, material);
+    let topology = TetTopology::new(&mesh);
+    let mut force_field = TensorMassForceField::new(&model, &topology, spec.elasticity);
+    if let Some(threshold) = spec.adaptive_threshold {
+        force_field.enable_adaptive(&model, threshold, 0.2);
+    }
+    let step = f64::from(1u32 << config.level);
+    let size: Vec3 = std::array::from_fn(|a| step * volume.spacing()[a]);
+    let fixed = fixed_at(config, &model.rest, size);
+    let mut external = patch_forces(config, &model.rest)?;
+    for (f, m) in external.iter_mut().zip(&model.lumped_mass) {
+        for a in 0..3 {
+            f[a] += m * config.gravity[a];
+        }
+    }
+    let integrator = CentralDifference::new(
+        &model,
+        &force_field,
+        &fixed,
+        &model.rest,
+        config.dt,
+        config.rayleigh_alpha,
+    )
+    .map_err(|e| format!("integrator.dt: {e}"))?;
+    let stable_dt = integrator.stable_dt;
+    Ok((
+        TetBody {
+            mesh,
+            model,
+            topology,
+            penalty: spec.incompressibility.map(|kappa| Incompressibility { kappa }),
+            force_field,
+            stable_dt,
+            cells,
+            voxel_dims: volume.dims(),
+            external,
+            integrator,
+        },
+        fixed,
+    ))
+}
+
+/// Removes the tetrahedra of every cell holding one of `edit`'s removed voxels.
+fn remove_voxel_cells(
+    tet: &mut TetBody,
+    config: &SceneConfig,
+    edit: &GridEdit,
+) -> Result<(), EditError> {
+    let dims = tet.voxel_dims;
+    let count = dims.iter().product::<usize>();
+    let step = 1usize << config.level;
+    let mut doomed: Vec<[usize; 3]> = Vec::with_capacity(edit.remove_voxels.len());
+    for &v in &edit.remove_voxels {
+        if v as usize >= count {
+            return Err(EditError::VoxelOutOfRange { voxel: v, count });
+        }
+        let v = v as usize;
+        let p = [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])];
+        doomed.push(std::array::from_fn(|a| p[a] / step));
+    }
+    doomed.sort_unstable();
+    doomed.dedup();
+    for (k, cell) in tet.cells.clone().iter().enumerate() {
+        if doomed.binary_search(cell).is_ok() {
+            for t in 6 * k..6 * k + 6 {
+                tet.force_field.remove_tet(&tet.model, &mut tet.topology, t);
+            }
+        }
+    }
+    Ok(())
 }

@@ -32,9 +32,20 @@ pub fn lattice_to_tets(
     region: impl Fn(usize, usize, usize) -> Option<u32>,
     position: impl Fn(usize, usize, usize) -> Vec3,
 ) -> Result<TetMesh, TetMeshError> {
+    lattice_to_tets_with_cells(cells, region, position).map(|(mesh, _)| mesh)
+}
+
+/// [`lattice_to_tets`], also returning the lattice cell of each group of 6 tetrahedra
+/// (tetrahedra `6k..6k + 6` come from cell `k` of the list).
+pub fn lattice_to_tets_with_cells(
+    cells: [usize; 3],
+    region: impl Fn(usize, usize, usize) -> Option<u32>,
+    position: impl Fn(usize, usize, usize) -> Vec3,
+) -> Result<(TetMesh, Vec<[usize; 3]>), TetMeshError> {
     let node_key = |i: usize, j: usize, k: usize| (k * (cells[1] + 1) + j) * (cells[0] + 1) + i;
     let mut used: BTreeMap<usize, u32> = BTreeMap::new();
     let mut cell_tets: Vec<([usize; 8], u32)> = Vec::new();
+    let mut cell_list = Vec::new();
     for k in 0..cells[2] {
         for j in 0..cells[1] {
             for i in 0..cells[0] {
@@ -46,6 +57,7 @@ pub fn lattice_to_tets(
                         used.insert(n, 0);
                     }
                     cell_tets.push((corners, r));
+                    cell_list.push([i, j, k]);
                 }
             }
         }
@@ -70,7 +82,7 @@ pub fn lattice_to_tets(
             regions.push(*r);
         }
     }
-    TetMesh::new(vertices, tets, regions)
+    Ok((TetMesh::new(vertices, tets, regions)?, cell_list))
 }
 
 /// The tetrahedralisation of `volume` at grid `level`: cells of `2^level` voxels per axis, a cell
@@ -78,11 +90,19 @@ pub fn lattice_to_tets(
 /// (the smallest on a tie). Positions are in the grid frame (voxel corner 0 at the origin), like
 /// the hexahedral model's.
 pub fn from_volume(volume: &LabelVolume, level: u32) -> Result<TetMesh, TetMeshError> {
+    from_volume_with_cells(volume, level).map(|(mesh, _)| mesh)
+}
+
+/// [`from_volume`], also returning the grid cell (at `level`) of each group of 6 tetrahedra.
+pub fn from_volume_with_cells(
+    volume: &LabelVolume,
+    level: u32,
+) -> Result<(TetMesh, Vec<[usize; 3]>), TetMeshError> {
     let step = 1usize << level;
     let dims = volume.dims();
     let cells: [usize; 3] = std::array::from_fn(|a| dims[a].div_ceil(step));
     let spacing = volume.spacing();
-    lattice_to_tets(
+    lattice_to_tets_with_cells(
         cells,
         |i, j, k| {
             let mut counts: BTreeMap<u16, usize> = BTreeMap::new();

@@ -60,7 +60,10 @@ pub fn speed_error_png(
         .y_desc("relative error")
         .label_style(("sans-serif", 14))
         .draw()?;
-    for (i, model) in ["corotational-hex", "linear-hex"].iter().enumerate() {
+    for (i, model) in ["corotational-hex", "linear-hex", "tensor-mass-svk", "tensor-mass-linear"]
+        .iter()
+        .enumerate()
+    {
         let color = Palette99::pick(i).to_rgba();
         let series: Vec<(f64, f64)> =
             usable.iter().filter(|p| p.0 == *model).map(|p| (p.1, p.2)).collect();
@@ -70,7 +73,7 @@ pub fn speed_error_png(
             .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
     }
     for (k, (name, rates)) in PEERS.iter().enumerate() {
-        let color = Palette99::pick(k + 4).to_rgba();
+        let color = Palette99::pick(k + 6).to_rgba();
         for (b, &rate) in rates.iter().enumerate() {
             if rate > x_lo && rate < x_hi {
                 // Their error is not published: they sit in a band at the top, at their speed only.

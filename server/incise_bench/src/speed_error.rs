@@ -87,6 +87,8 @@ struct Case {
     reference: Option<f64>,
     /// The implicit solvers measured on this scene (each gets its own rows).
     solvers: Vec<LinearSolver>,
+    /// Block scenes: the cells per axis, from which the tensor-mass rows build their tetrahedra.
+    block_cells: Option<[usize; 3]>,
 }
 
 const BLOCK: Vec3 = [0.15, 0.10, 0.08];
@@ -123,6 +125,7 @@ fn block_case(name: &str, cells: [usize; 3]) -> Case {
         // Both: Jacobi-CG is the faster when the mass dominates (dt = 1 ms), the Cholesky
         // preconditioner when the stiffness does (dt = 10 ms), until its fill grows too large.
         solvers: vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
+        block_cells: Some(cells),
     }
 }
 
@@ -152,6 +155,7 @@ fn cantilever_case(n: usize) -> Case {
         reference: Some(eb),
         // A slender beam is ill-conditioned for Jacobi but factorises with little fill.
         solvers: vec![LinearSolver::CholeskyCg { refresh_iterations: 8 }],
+        block_cells: None,
     }
 }
 
@@ -180,6 +184,7 @@ fn liver_case(name: &str, stride: [usize; 3]) -> anyhow::Result<Case> {
         axis: None,
         reference: None,
         solvers: vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
+        block_cells: None,
     })
 }
 
@@ -380,6 +385,10 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 }
             }
         }
+        if let Some(cells) = case.block_cells {
+            bar.set_message(format!("{} {} tensor-mass", case.scene, case.resolution));
+            rows.extend(tensor_mass_rows(case, cells, args));
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -424,9 +433,110 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Paper 2's tensor-mass model (linear and St Venant-Kirchhoff, explicit central differences) on
+/// scene B's block split into 6 tetrahedra per cell, at 1 ms, 10 ms and the mesh's own stable
+/// step. Its error is its static answer (dynamic relaxation) against the same reference.
+fn tensor_mass_rows(case: &Case, cells: [usize; 3], args: &SpeedErrorArgs) -> Vec<Row> {
+    use incise_fem::tet::explicit::{CentralDifference, stable_dt as tet_stable_dt};
+    use incise_fem::tet::relax::{Prescribed, RelaxSettings, relax};
+    use incise_fem::tet::{
+        Elasticity, Lame, TensorMassForceField, TetMaterial, TetModel, TetTopology,
+    };
+    let spacing: Vec3 = std::array::from_fn(|a| BLOCK[a] / cells[a] as f64);
+    let mesh = incise_fem::tet::generate::lattice_to_tets(
+        cells,
+        |_, _, _| Some(1),
+        |i, j, k| [i as f64 * spacing[0], j as f64 * spacing[1], k as f64 * spacing[2]],
+    )
+    .expect("a block tetrahedralises");
+    let model = TetModel::new(&mesh, |_| {
+        TetMaterial::isotropic(Lame::from_young_poisson(3e3, 0.45), 1000.0)
+    });
+    let topo = TetTopology::new(&mesh);
+    let fixed = FixedNodes::plane(&model.rest, 2, BLOCK[2], 1e-9);
+    // The same loads as the hexahedral rows: gravity and 0.5 N spread near the corner.
+    let corner = [BLOCK[0], BLOCK[1], 0.0];
+    let dist =
+        |n: usize| (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt();
+    let patch: Vec<usize> = (0..model.vertex_count()).filter(|&n| dist(n) <= 0.022).collect();
+    let share = 0.5 / 3f64.sqrt() / patch.len() as f64;
+    let mut external: Vec<Vec3> = model.lumped_mass.iter().map(|m| [0.0, 0.0, -9.81 * m]).collect();
+    for &n in &patch {
+        external[n][0] += share;
+        external[n][1] += share;
+        external[n][2] -= share;
+    }
+    let probe =
+        (0..model.vertex_count()).min_by(|&a, &b| dist(a).total_cmp(&dist(b))).expect("vertices");
+    let mut rows = Vec::new();
+    for (name, kind) in [
+        ("tensor-mass-svk", Elasticity::StVenantKirchhoff),
+        ("tensor-mass-linear", Elasticity::Linear),
+    ] {
+        let ff = TensorMassForceField::new(&model, &topo, kind);
+        let limit = tet_stable_dt(&model, &ff, &fixed);
+        let mut x = model.rest.clone();
+        let settled = relax(
+            &model,
+            &topo,
+            &ff,
+            None,
+            &fixed,
+            &Prescribed { targets: Vec::new(), ramp_steps: 1 },
+            &external,
+            0.5 * limit,
+            &mut x,
+            RelaxSettings { tolerance: 1e-5, max_steps: 400_000 },
+        );
+        let answer =
+            (0..3).map(|a| (x[probe][a] - model.rest[probe][a]).powi(2)).sum::<f64>().sqrt();
+        let error = case.reference.filter(|_| settled.converged).map(|r| (answer - r).abs() / r);
+        for dt in [1e-3, 1e-2, limit] {
+            let run = |steps: usize| -> (bool, f64) {
+                let Ok(mut cd) = CentralDifference::new(&model, &ff, &fixed, &model.rest, dt, 2.0)
+                else {
+                    return (false, 0.0);
+                };
+                let mut x = model.rest.clone();
+                let start = std::time::Instant::now();
+                for _ in 0..steps {
+                    cd.step(&model, &topo, &ff, None, &fixed, &external, &mut x);
+                }
+                let secs = start.elapsed().as_secs_f64();
+                (x.iter().flatten().all(|c| c.is_finite()), steps as f64 / secs)
+            };
+            let (ok, _) = run((args.stable_seconds / dt).ceil() as usize);
+            let rates: Vec<f64> = if ok {
+                let mut r: Vec<f64> = (0..args.repeats.max(1)).map(|_| run(args.steps).1).collect();
+                r.sort_by(f64::total_cmp);
+                r
+            } else {
+                vec![0.0]
+            };
+            rows.push(Row {
+                scene: case.scene.clone(),
+                model: name,
+                integrator: "explicit",
+                solver: "-",
+                resolution: case.resolution.clone(),
+                level: 0,
+                elements: mesh.tets().len(),
+                dofs: 3 * model.vertex_count(),
+                dt,
+                steps_per_s: rates[rates.len() / 2],
+                steps_per_s_min: rates[0],
+                steps_per_s_max: rates[rates.len() - 1],
+                error,
+                stable: ok,
+            });
+        }
+    }
+    rows
+}
+
 fn print_table(rows: &[Row]) {
     println!(
-        "{:<11} {:<17} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>6} {:>10} {:>10} {:>10} {:>9} {:>6}",
+        "{:<11} {:<18} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10} {:>10} {:>10} {:>9} {:>6}",
         "scene",
         "model",
         "integrator",
@@ -444,7 +554,7 @@ fn print_table(rows: &[Row]) {
     );
     for r in rows {
         println!(
-            "{:<11} {:<17} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>6} {:>10.1} {:>10.1} {:>10.1} {:>9} {:>6}",
+            "{:<11} {:<18} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10.1} {:>10.1} {:>10.1} {:>9} {:>6}",
             r.scene,
             r.model,
             r.integrator,
@@ -453,7 +563,7 @@ fn print_table(rows: &[Row]) {
             r.level,
             r.elements,
             r.dofs,
-            r.dt,
+            format!("{:.3}", r.dt * 1e3) + " ms",
             r.steps_per_s,
             r.steps_per_s_min,
             r.steps_per_s_max,

@@ -234,7 +234,8 @@ fn tet_volume_change(case: &VolumeCase, model_index: usize, kappa_over_lambda: f
         penalty.as_ref(),
         &case.fixed,
         &case.prescribed,
-        dt,
+        &[],
+        0.5 * dt,
         &mut x,
         RelaxSettings { tolerance: 1e-4, max_steps: 400_000 },
     );

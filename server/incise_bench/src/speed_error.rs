@@ -438,7 +438,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
 /// step. Its error is its static answer (dynamic relaxation) against the same reference.
 fn tensor_mass_rows(case: &Case, cells: [usize; 3], args: &SpeedErrorArgs) -> Vec<Row> {
     use incise_fem::tet::explicit::{CentralDifference, stable_dt as tet_stable_dt};
-    use incise_fem::tet::relax::{Prescribed, RelaxSettings, relax};
+    use incise_fem::tet::relax::{Prescribed, RelaxSettings, Statics, relax};
     use incise_fem::tet::{
         Elasticity, Lame, TensorMassForceField, TetMaterial, TetModel, TetTopology,
     };
@@ -476,14 +476,17 @@ fn tensor_mass_rows(case: &Case, cells: [usize; 3], args: &SpeedErrorArgs) -> Ve
         let ff = TensorMassForceField::new(&model, &topo, kind);
         let limit = tet_stable_dt(&model, &ff, &fixed);
         let mut x = model.rest.clone();
+        let problem = Statics {
+            model: &model,
+            topology: &topo,
+            force_field: &ff,
+            penalty: None,
+            fixed: &fixed,
+            prescribed: &Prescribed { targets: Vec::new(), ramp_steps: 1 },
+            external: &external,
+        };
         let settled = relax(
-            &model,
-            &topo,
-            &ff,
-            None,
-            &fixed,
-            &Prescribed { targets: Vec::new(), ramp_steps: 1 },
-            &external,
+            &problem,
             0.5 * limit,
             &mut x,
             RelaxSettings { tolerance: 1e-5, max_steps: 400_000 },

@@ -24,7 +24,7 @@ use incise_fem::tet::explicit::{CentralDifference, stable_dt};
 use incise_fem::tet::generate::{KUHN, cylinder, cylinder_top_centre, from_volume};
 use incise_fem::tet::incompressible::Incompressibility;
 use incise_fem::tet::mesh::signed_volume;
-use incise_fem::tet::relax::{Prescribed, RelaxSettings, relax};
+use incise_fem::tet::relax::{Prescribed, RelaxSettings, Statics, relax};
 use incise_fem::tet::{Lame, TensorMassForceField, TetMaterial, TetMesh, TetModel, TetTopology};
 use incise_fem::{Formulation, HexForceField, HexModel};
 use incise_grid::{BranchedGrid, LabelFilter, LabelVolume, Material, MaterialTable};
@@ -227,18 +227,17 @@ fn tet_volume_change(case: &VolumeCase, model_index: usize, kappa_over_lambda: f
         (model_index == 2).then_some(Incompressibility { kappa: kappa_over_lambda * lambda });
     let dt = stable_dt(&case.model, &ff, &case.fixed);
     let mut x = case.model.rest.clone();
-    let report = relax(
-        &case.model,
-        &topo,
-        &ff,
-        penalty.as_ref(),
-        &case.fixed,
-        &case.prescribed,
-        &[],
-        0.5 * dt,
-        &mut x,
-        RelaxSettings { tolerance: 1e-4, max_steps: 400_000 },
-    );
+    let problem = Statics {
+        model: &case.model,
+        topology: &topo,
+        force_field: &ff,
+        penalty: penalty.as_ref(),
+        fixed: &case.fixed,
+        prescribed: &case.prescribed,
+        external: &[],
+    };
+    let report =
+        relax(&problem, 0.5 * dt, &mut x, RelaxSettings { tolerance: 1e-4, max_steps: 400_000 });
     let v0 = tet_volume(&case.model, &case.model.rest);
     (100.0 * (tet_volume(&case.model, &x) - v0).abs() / v0, report.converged)
 }

@@ -49,25 +49,35 @@ pub struct RelaxReport {
 /// stiffness, and the incompressibility penalty or strongly stretched SVK can be stiffer.
 const ATTEMPTS: usize = 5;
 
-/// Relaxes `x` (start: rest positions) to equilibrium under `external` forces (N per vertex;
-/// empty = none) with `fixed` vertices held at rest and the `prescribed` ones moved to their
-/// targets. `fixed` must include the prescribed vertices. When the motion blows up (non-finite
-/// positions), it starts again from `x` with half the step. Pass about half the stable step:
-/// at the stability limit the kinetic-energy peaks are blurred and the relaxation can stall
-/// (measured on scene B1's linear tetrahedra: no convergence in 400,000 steps at the limit,
-/// 1,050 steps at half of it).
+/// A static problem: the model, its supports and what moves or pulls it.
+#[derive(Clone, Copy)]
+pub struct Statics<'a> {
+    /// Rest data.
+    pub model: &'a TetModel,
+    /// Live tetrahedra.
+    pub topology: &'a TetTopology,
+    /// The stiffness.
+    pub force_field: &'a TensorMassForceField,
+    /// The incompressibility penalty, if any.
+    pub penalty: Option<&'a Incompressibility>,
+    /// Held vertices, the prescribed ones included.
+    pub fixed: &'a FixedNodes,
+    /// Vertices moved to targets.
+    pub prescribed: &'a Prescribed,
+    /// External forces (N per vertex; empty = none).
+    pub external: &'a [Vec3],
+}
+
+/// Relaxes `x` (start: rest positions) to the equilibrium of `problem`. When the motion blows up
+/// (non-finite positions), it starts again from `x` with half the step. Pass about half the
+/// stable step: at the stability limit the kinetic-energy peaks are blurred and the relaxation
+/// can stall (measured on scene B1's linear tetrahedra: no convergence in 400,000 steps at the
+/// limit, 1,050 steps at half of it).
 ///
 /// # Panics
 /// If the step `dt` is above the stable one.
-#[allow(clippy::too_many_arguments)] // the static problem is these things; a struct adds nothing
 pub fn relax(
-    model: &TetModel,
-    topo: &TetTopology,
-    ff: &TensorMassForceField,
-    penalty: Option<&Incompressibility>,
-    fixed: &FixedNodes,
-    prescribed: &Prescribed,
-    external: &[Vec3],
+    problem: &Statics<'_>,
     dt: f64,
     x: &mut [Vec3],
     settings: RelaxSettings,
@@ -76,8 +86,7 @@ pub fn relax(
     let mut dt = dt;
     for _ in 0..ATTEMPTS {
         x.copy_from_slice(&start);
-        let report =
-            attempt(model, topo, ff, penalty, fixed, prescribed, external, dt, x, settings);
+        let report = attempt(problem, dt, x, settings);
         if x.iter().flatten().all(|c| c.is_finite()) {
             return report;
         }
@@ -86,19 +95,9 @@ pub fn relax(
     RelaxReport { steps: 0, dt, residual: f64::INFINITY, converged: false }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn attempt(
-    model: &TetModel,
-    topo: &TetTopology,
-    ff: &TensorMassForceField,
-    penalty: Option<&Incompressibility>,
-    fixed: &FixedNodes,
-    prescribed: &Prescribed,
-    external: &[Vec3],
-    dt: f64,
-    x: &mut [Vec3],
-    settings: RelaxSettings,
-) -> RelaxReport {
+fn attempt(problem: &Statics<'_>, dt: f64, x: &mut [Vec3], settings: RelaxSettings) -> RelaxReport {
+    let Statics { model, topology: topo, force_field: ff, penalty, fixed, prescribed, external } =
+        *problem;
     let mut cd = CentralDifference::new(model, ff, fixed, x, dt, 0.0)
         .expect("relaxation runs at or below the stable step");
     let n = x.len();

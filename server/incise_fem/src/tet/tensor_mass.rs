@@ -332,17 +332,19 @@ impl TensorMassForceField {
                 self.quartic.remove(key, *d, |a, b| *a -= b);
             }
         }
-        if let Some(a) = self.adaptive.as_mut() {
-            a.active = [
-                (0..self.cubic.keys.len() as u32)
-                    .filter(|&i| self.cubic.contributors[i as usize] > 0)
-                    .collect(),
-                (0..self.quartic.keys.len() as u32)
-                    .filter(|&i| self.quartic.contributors[i as usize] > 0)
-                    .collect(),
-            ];
-        }
+        self.refresh_active();
         true
+    }
+
+    /// Adaptive: the active term lists from the contributor counts.
+    fn refresh_active(&mut self) {
+        let active = |contributors: &[u32]| -> Vec<u32> {
+            (0..contributors.len() as u32).filter(|&i| contributors[i as usize] > 0).collect()
+        };
+        let lists = [active(&self.cubic.contributors), active(&self.quartic.contributors)];
+        if let Some(a) = self.adaptive.as_mut() {
+            a.active = lists;
+        }
     }
 
     /// The model this field evaluates.
@@ -552,8 +554,6 @@ impl TensorMassForceField {
     /// Updates which vertices (and so which live tetrahedra of `topo`) are non-linear from
     /// positions `x`, and the tables with them; returns how many vertices are non-linear.
     ///
-    /// # Panics
-    /// Never: the adaptive state is checked first.
     pub fn update_adaptive(&mut self, model: &TetModel, topo: &TetTopology, x: &[Vec3]) -> usize {
         let Some(state) = self.adaptive.as_mut() else {
             return self.nonlinear_count();
@@ -595,15 +595,7 @@ impl TensorMassForceField {
                 self.switch_tet(model, topo, t as usize, on);
             }
         }
-        let state = self.adaptive.as_mut().expect("adaptive is on");
-        state.active = [
-            (0..self.cubic.keys.len() as u32)
-                .filter(|&i| self.cubic.contributors[i as usize] > 0)
-                .collect(),
-            (0..self.quartic.keys.len() as u32)
-                .filter(|&i| self.quartic.contributors[i as usize] > 0)
-                .collect(),
-        ];
+        self.refresh_active();
         count
     }
 

@@ -297,26 +297,41 @@ impl TensorMassForceField {
         field
     }
 
-    /// Removes tetrahedron `t` from `topo` and subtracts its stiffness contributions; false when it
-    /// was already removed.
-    pub fn remove_tet(&mut self, model: &TetModel, topo: &mut TetTopology, t: usize) -> bool {
-        if !topo.remove(t) {
-            return false;
+    /// Cuts tetrahedron `t` out of `topo` ([`TetTopology::cut`]: with any tetrahedra that would
+    /// hang on by an edge or a vertex) and subtracts each removed tetrahedron's stiffness
+    /// contributions. Returns the tetrahedra removed (empty when `t` was already removed).
+    pub fn remove_tet(&mut self, model: &TetModel, topo: &mut TetTopology, t: usize) -> Vec<usize> {
+        let removed = topo.cut(t);
+        for &r in &removed {
+            self.subtract(model, topo, r);
         }
+        // A vertex or edge without live tetrahedra is exactly zero, not a rounding residue.
+        for &r in &removed {
+            for &n in &model.tets[r] {
+                if topo.vertex_degree(n as usize) == 0 {
+                    self.vertex_b[n as usize] = [[0.0; 3]; 3];
+                }
+            }
+            for &e in topo.tet_edges(r) {
+                if topo.edge_degree(e as usize) == 0 {
+                    self.edge_b[e as usize] = [[0.0; 3]; 3];
+                }
+            }
+        }
+        if !removed.is_empty() {
+            self.refresh_active();
+        }
+        removed
+    }
+
+    /// Subtracts removed tetrahedron `t`'s contributions.
+    fn subtract(&mut self, model: &TetModel, topo: &TetTopology, t: usize) {
         let terms = tet_terms(model, topo, t, self.kind);
         for (n, m) in &terms.vertex {
-            if topo.vertex_degree(*n as usize) == 0 {
-                self.vertex_b[*n as usize] = [[0.0; 3]; 3];
-            } else {
-                add3(&mut self.vertex_b[*n as usize], m, -1.0);
-            }
+            add3(&mut self.vertex_b[*n as usize], m, -1.0);
         }
         for (e, m) in &terms.edge {
-            if topo.edge_degree(*e as usize) == 0 {
-                self.edge_b[*e as usize] = [[0.0; 3]; 3];
-            } else {
-                add3(&mut self.edge_b[*e as usize], m, -1.0);
-            }
+            add3(&mut self.edge_b[*e as usize], m, -1.0);
         }
         // Adaptive: a linear tetrahedron's cubic and quartic terms are not in the tables.
         let in_tables = self.adaptive.as_ref().is_none_or(|a| a.tet_count[t] > 0);
@@ -332,8 +347,6 @@ impl TensorMassForceField {
                 self.quartic.remove(key, *d, |a, b| *a -= b);
             }
         }
-        self.refresh_active();
-        true
     }
 
     /// Adaptive: the active term lists from the contributor counts.

@@ -29,6 +29,8 @@ pub struct TetTopology {
     triangle_tets: Vec<u32>,
     /// Tetrahedra of each triangle (`u32::MAX` when fewer than two).
     triangle_owners: Vec<[u32; 2]>,
+    /// Tetrahedra (live or not) of each vertex.
+    vertex_star: Vec<Vec<u32>>,
     live: usize,
 }
 
@@ -73,7 +75,14 @@ impl TetTopology {
                 id
             }));
         }
+        let mut vertex_star = vec![Vec::new(); mesh.vertices().len()];
+        for (t, v) in tets.iter().enumerate() {
+            for &n in v {
+                vertex_star[n as usize].push(t as u32);
+            }
+        }
         let mut topo = Self {
+            vertex_star,
             vertex_count: mesh.vertices().len(),
             alive: vec![true; tets.len()],
             vertex_tets: vec![0; mesh.vertices().len()],
@@ -107,7 +116,102 @@ impl TetTopology {
         }
     }
 
-    /// Removes tetrahedron `t`; false when it was already removed.
+    /// Cuts tetrahedron `t` out, and with it any tetrahedra that would otherwise hang on the
+    /// rest by an edge or a vertex alone: around every vertex and edge of a removed tetrahedron
+    /// the live tetrahedra must stay connected through faces, or the smaller groups go too (the
+    /// largest stays; on a tie, the one with the lowest tetrahedron). So the boundary stays a
+    /// closed manifold surface, and no piece is held by a hinge a real cut would not leave.
+    /// Returns every tetrahedron removed, `t` first (empty when `t` was already removed).
+    pub fn cut(&mut self, t: usize) -> Vec<usize> {
+        if !self.remove(t) {
+            return Vec::new();
+        }
+        let mut removed = vec![t];
+        let mut work: Vec<Vec<u32>> = Vec::new();
+        let push_simplices = |t: usize, work: &mut Vec<Vec<u32>>, tets: &[[u32; 4]]| {
+            let v = tets[t];
+            work.extend(v.iter().map(|&a| vec![a]));
+            work.extend(EDGES.iter().map(|&[a, b]| vec![v[a], v[b]]));
+        };
+        push_simplices(t, &mut work, &self.tets);
+        while let Some(simplex) = work.pop() {
+            let groups = self.star_groups(&simplex);
+            if groups.len() < 2 {
+                continue;
+            }
+            let mut keep = 0;
+            for g in 1..groups.len() {
+                // The largest; on a tie the one with the lowest tetrahedron (groups come in
+                // order of their first member, so the earlier one).
+                if groups[g].len() > groups[keep].len() {
+                    keep = g;
+                }
+            }
+            for (g, group) in groups.iter().enumerate() {
+                if g == keep {
+                    continue;
+                }
+                for &u in group {
+                    if self.remove(u as usize) {
+                        removed.push(u as usize);
+                        push_simplices(u as usize, &mut work, &self.tets);
+                    }
+                }
+            }
+        }
+        removed
+    }
+
+    /// How many groups of live tetrahedra, connected through faces, meet at vertex `v` (more than
+    /// one: they are joined by the vertex alone; [`TetTopology::cut`] never leaves that).
+    #[must_use]
+    pub fn vertex_groups(&self, v: u32) -> usize {
+        self.star_groups(&[v]).len()
+    }
+
+    /// The live tetrahedra containing every vertex of `simplex`, grouped by connection through
+    /// faces that contain the simplex; each group sorted, groups in order of their first member.
+    fn star_groups(&self, simplex: &[u32]) -> Vec<Vec<u32>> {
+        let star: Vec<u32> = self.vertex_star[simplex[0] as usize]
+            .iter()
+            .copied()
+            .filter(|&u| {
+                self.alive[u as usize] && simplex.iter().all(|v| self.tets[u as usize].contains(v))
+            })
+            .collect();
+        let mut group = vec![usize::MAX; star.len()];
+        let mut groups = Vec::new();
+        for start in 0..star.len() {
+            if group[start] != usize::MAX {
+                continue;
+            }
+            let id = groups.len();
+            let mut members = vec![star[start]];
+            group[start] = id;
+            let mut stack = vec![start];
+            while let Some(i) = stack.pop() {
+                let a = self.tets[star[i] as usize];
+                for (j, &other) in star.iter().enumerate() {
+                    if group[j] != usize::MAX {
+                        continue;
+                    }
+                    let b = self.tets[other as usize];
+                    // Adjacent: they share a triangle (three vertices), which contains the simplex.
+                    if a.iter().filter(|v| b.contains(v)).count() == 3 {
+                        group[j] = id;
+                        members.push(other);
+                        stack.push(j);
+                    }
+                }
+            }
+            members.sort_unstable();
+            groups.push(members);
+        }
+        groups
+    }
+
+    /// Removes tetrahedron `t` alone (no clean-up; see [`TetTopology::cut`]); false when it was
+    /// already removed.
     pub fn remove(&mut self, t: usize) -> bool {
         if !self.alive[t] {
             return false;
@@ -228,6 +332,41 @@ pub fn check_closed(surface: &[[u32; 3]]) -> Result<(), [u32; 2]> {
     let mut bad: Vec<_> = balance.into_iter().filter(|(_, d)| *d != 0).map(|(k, _)| k).collect();
     bad.sort_unstable();
     bad.first().map_or(Ok(()), |&e| Err(e))
+}
+
+/// Checks that `surface` is a manifold: every edge in exactly two triangles, and around every
+/// vertex its triangles form one fan (the link of the vertex is one cycle). Returns what fails.
+pub fn check_manifold(surface: &[[u32; 3]]) -> Result<(), String> {
+    if let Some(e) = non_manifold_edges(surface).first() {
+        return Err(format!("edge {e:?} is in more than two triangles"));
+    }
+    let mut link: HashMap<u32, Vec<[u32; 2]>> = HashMap::new();
+    for tri in surface {
+        for i in 0..3 {
+            link.entry(tri[i]).or_default().push([tri[(i + 1) % 3], tri[(i + 2) % 3]]);
+        }
+    }
+    let mut vertices: Vec<_> = link.keys().copied().collect();
+    vertices.sort_unstable();
+    for v in vertices {
+        let edges = &link[&v];
+        // One cycle: walking from the first edge along shared endpoints visits every edge.
+        let mut seen = vec![false; edges.len()];
+        let mut stack = vec![0];
+        seen[0] = true;
+        while let Some(i) = stack.pop() {
+            for (j, e) in edges.iter().enumerate() {
+                if !seen[j] && e.iter().any(|x| edges[i].contains(x)) {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        if seen.iter().any(|s| !s) {
+            return Err(format!("the triangles around vertex {v} form more than one fan"));
+        }
+    }
+    Ok(())
 }
 
 /// Edges of `surface` shared by more than two of its triangles: where two parts of the solid touch

@@ -119,8 +119,10 @@ impl TetTopology {
     /// Cuts tetrahedron `t` out, and with it any tetrahedra that would otherwise hang on the
     /// rest by an edge or a vertex alone: around every vertex and edge of a removed tetrahedron
     /// the live tetrahedra must stay connected through faces, or the smaller groups go too (the
-    /// largest stays; on a tie, the one with the lowest tetrahedron). So the boundary stays a
-    /// closed manifold surface, and no piece is held by a hinge a real cut would not leave.
+    /// largest stays; on a tie, the one with the lowest tetrahedron); and where the tetrahedra
+    /// around a vertex form a ring around a tunnel through it (the surface would touch itself
+    /// there), the ring goes. So a manifold boundary stays a closed manifold surface, and no piece
+    /// is held by a hinge a real cut would not leave.
     /// Returns every tetrahedron removed, `t` first (empty when `t` was already removed).
     pub fn cut(&mut self, t: usize) -> Vec<usize> {
         if !self.remove(t) {
@@ -137,6 +139,18 @@ impl TetTopology {
         while let Some(simplex) = work.pop() {
             let groups = self.star_groups(&simplex);
             if groups.len() < 2 {
+                // One group around a vertex can still be a ring around a tunnel through it, the
+                // surface meeting itself there in two sheets: the ring goes.
+                if let ([v], [ring]) = (simplex.as_slice(), groups.as_slice())
+                    && self.sheets_at(*v, ring) > 1
+                {
+                    for &u in ring {
+                        if self.remove(u as usize) {
+                            removed.push(u as usize);
+                            push_simplices(u as usize, &mut work, &self.tets);
+                        }
+                    }
+                }
                 continue;
             }
             let mut keep = 0;
@@ -160,6 +174,43 @@ impl TetTopology {
             }
         }
         removed
+    }
+
+    /// How many separate fans the boundary triangles around vertex `v` form, for the live
+    /// tetrahedra `star` around it (1 on a manifold surface, 0 inside).
+    fn sheets_at(&self, v: u32, star: &[u32]) -> usize {
+        let mut link: Vec<[u32; 2]> = Vec::new();
+        for &t in star {
+            let tet = self.tets[t as usize];
+            for (f, face) in FACES.iter().enumerate() {
+                let tri = face.map(|i| tet[i]);
+                if tri.contains(&v)
+                    && self.triangle_tets[self.tet_triangles[t as usize][f] as usize] == 1
+                {
+                    let others: Vec<u32> = tri.iter().copied().filter(|&x| x != v).collect();
+                    link.push([others[0], others[1]]);
+                }
+            }
+        }
+        let mut seen = vec![false; link.len()];
+        let mut fans = 0;
+        for start in 0..link.len() {
+            if seen[start] {
+                continue;
+            }
+            fans += 1;
+            seen[start] = true;
+            let mut stack = vec![start];
+            while let Some(i) = stack.pop() {
+                for j in 0..link.len() {
+                    if !seen[j] && link[j].iter().any(|x| link[i].contains(x)) {
+                        seen[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        fans
     }
 
     /// How many groups of live tetrahedra, connected through faces, meet at vertex `v` (more than

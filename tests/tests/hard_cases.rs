@@ -362,3 +362,74 @@ fn cutting_while_moving_keeps_the_simulation_sound() {
     let moved = max_displacement(sim.model().expect("a hexahedral scene"), &sim.state().x);
     assert!(moved < 0.1, "the cut block moved {moved:e} m");
 }
+
+/// Every field of two models, compared bit for bit.
+fn assert_same_model(a: &HexModel, b: &HexModel, what: &str) {
+    let bits = |v: &[Vec3]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&a.rest), bits(&b.rest), "{what}: rest positions");
+    assert_eq!(a.grid_node, b.grid_node, "{what}: node numbering");
+    let mass = |m: &[f64]| m.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(mass(&a.lumped_mass), mass(&b.lumped_mass), "{what}: lumped masses");
+    assert_eq!(a.elements.len(), b.elements.len(), "{what}: element count");
+    for (ea, eb) in a.elements.iter().zip(&b.elements) {
+        assert_eq!((ea.grid_id, ea.nodes), (eb.grid_id, eb.nodes), "{what}: element");
+        assert!(
+            ea.stiffness
+                .0
+                .iter()
+                .zip(eb.stiffness.0.iter())
+                .all(|(x, y)| x.to_bits() == y.to_bits()),
+            "{what}: stiffness of element {}",
+            ea.grid_id
+        );
+        assert!(
+            ea.mass.iter().zip(eb.mass.iter()).all(|(x, y)| x.to_bits() == y.to_bits()),
+            "{what}: mass of element {}",
+            ea.grid_id
+        );
+    }
+}
+
+#[test]
+fn the_model_updated_after_cuts_equals_a_rebuild() {
+    // Level 2 of an ellipsoid with an inclusion: cuts split, shrink and re-condense coarse
+    // elements; the elements they leave alone keep their matrices.
+    let v = ellipsoid_with_inclusion(24, 5e-3);
+    let mut table = MaterialTable::new();
+    table.insert(TISSUE, soft());
+    table.insert(TUMOUR, Material::new(3e5, 0.45, 1000.0));
+    let mut grid = BranchedGrid::build(&v, &table, 2).unwrap();
+    let mut model = HexModel::from_grid(&grid);
+    let dims = grid.fine().dims();
+    for (k, x) in [5u32, 9, 12, 13, 17].into_iter().enumerate() {
+        // A blade through the middle, then a severed sheet of links beside it.
+        let column: Vec<u32> = (0..dims[2] as u32)
+            .flat_map(|z| {
+                (0..dims[1] as u32 / 2).map(move |y| x + dims[0] as u32 * (y + dims[1] as u32 * z))
+            })
+            .collect();
+        let links: Vec<(u32, u32)> = column.iter().map(|&i| (i + 1, i + 2)).collect();
+        let changes = grid.apply(&GridEdit { remove_voxels: column, sever_links: links }).unwrap();
+        assert!(changes.voxels_removed > 0 && !changes.matrices_updated.is_empty(), "cut {k}");
+        let updated = model.updated(&grid, &changes);
+        assert_same_model(&updated, &HexModel::from_grid(&grid), &format!("after cut {k}"));
+        // The untouched elements kept their matrices (the same shared copy, not a new one).
+        let kept = updated
+            .elements
+            .iter()
+            .filter(|e| {
+                model.elements.iter().any(|o| {
+                    o.grid_id == e.grid_id && std::sync::Arc::ptr_eq(&o.stiffness, &e.stiffness)
+                })
+            })
+            .count();
+        println!(
+            "cut {k}: {} voxels removed, {} of {} elements kept their matrices",
+            changes.voxels_removed,
+            kept,
+            updated.elements.len()
+        );
+        assert!(kept > 0 && kept < updated.elements.len(), "cut {k}: {kept}");
+        model = updated;
+    }
+}

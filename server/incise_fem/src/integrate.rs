@@ -260,6 +260,19 @@ impl BackwardEuler {
         }
     }
 
+    /// Carries the warm start across a topology change: new node `i` starts from the last step's
+    /// velocity change of old node `old_of_new[i]` (zero when it has none). The factorisation is
+    /// dropped: the system's sparsity pattern changed with the topology.
+    pub fn remap_warm_start(&mut self, old_of_new: &[Option<usize>]) {
+        let old = std::mem::take(&mut self.last_dv);
+        self.last_dv = old_of_new
+            .iter()
+            .map(|o| o.and_then(|j| old.get(j).copied()).unwrap_or([0.0; 3]))
+            .collect();
+        self.factor = None;
+        self.refresh = true;
+    }
+
     /// Forgets the warm start and the factorisation (after the topology changed).
     pub fn reset_warm_start(&mut self) {
         self.last_dv.clear();

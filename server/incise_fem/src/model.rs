@@ -2,8 +2,8 @@
 //! connectivity with each element's condensed stiffness and mass (Jeřábková 2010 §2.2), and the
 //! lumped node masses.
 
-use incise_grid::BranchedGrid;
 use incise_grid::hex8::{Mat8, Mat24};
+use incise_grid::{BranchedGrid, GridChanges};
 use incise_math::Vec3;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -46,6 +46,39 @@ impl HexModel {
     /// Only on a broken grid invariant (a live element without matrices or with a dead node).
     #[must_use]
     pub fn from_grid(grid: &BranchedGrid) -> Self {
+        Self::build(grid, |_| None)
+    }
+
+    /// The model of `grid` after an edit whose change list is `changes`, `self` being the model
+    /// of the grid before it: every element the edit did not touch keeps its (shared) stiffness
+    /// and mass; only added, changed and re-condensed elements get new ones. Equal to
+    /// [`HexModel::from_grid`] of the edited grid, without re-reading and re-sharing every
+    /// element's matrices.
+    #[must_use]
+    pub fn updated(&self, grid: &BranchedGrid, changes: &GridChanges) -> Self {
+        let mut touched: Vec<u32> = changes
+            .top
+            .elements_added
+            .iter()
+            .map(|&(id, _)| id)
+            .chain(changes.top.elements_changed.iter().copied())
+            .chain(changes.matrices_updated.iter().copied())
+            .collect();
+        touched.sort_unstable();
+        touched.dedup();
+        // Old elements are in grid-element order, so their ids are sorted.
+        let old = &self.elements;
+        Self::build(grid, |id| {
+            if touched.binary_search(&id).is_ok() {
+                return None;
+            }
+            let j = old.binary_search_by_key(&id, |e| e.grid_id).ok()?;
+            Some((old[j].stiffness.clone(), old[j].mass))
+        })
+    }
+
+    /// The model of `grid`, taking an element's matrices from `reuse(grid id)` when it has them.
+    fn build(grid: &BranchedGrid, reuse: impl Fn(u32) -> Option<(Arc<Mat24>, Mat8)>) -> Self {
         let top = grid.top();
         let mut model_of = vec![u32::MAX; top.node_capacity()];
         let mut rest = Vec::with_capacity(top.node_count());
@@ -64,12 +97,9 @@ impl HexModel {
             for (c, &n) in nodes.iter().enumerate() {
                 lumped_mass[n as usize] += m.lumped_mass[c];
             }
-            elements.push(HexElement {
-                nodes,
-                stiffness: shared.get(m.stiffness.symmetrized()),
-                mass: m.mass,
-                grid_id: id,
-            });
+            let (stiffness, mass) =
+                reuse(id).unwrap_or_else(|| (shared.get(m.stiffness.symmetrized()), m.mass));
+            elements.push(HexElement { nodes, stiffness, mass, grid_id: id });
         }
         Self { rest, lumped_mass, elements, element_size: grid.element_size(), grid_node }
     }

@@ -357,8 +357,9 @@ impl Simulation {
     /// Cuts the grid (voxel removal or link severing) and carries the simulation across the
     /// topology change: surviving nodes keep position and velocity; a node split off another takes
     /// that node's; any other new node takes its element's mean displacement and velocity.
-    /// Surviving and split-off elements keep their rotation. Fixed regions and patch loads are
-    /// re-applied to the new nodes.
+    /// Surviving and split-off elements keep their rotation; elements the edit did not touch keep
+    /// their matrices ([`HexModel::updated`]); the implicit solver's warm start follows the nodes.
+    /// Fixed regions and patch loads are re-applied to the new nodes.
     ///
     /// In a tensor-mass scene there is no grid: the tetrahedra of every cell holding a removed
     /// voxel are removed (their stiffness subtracted, paper 2 §3.2), severed links are not
@@ -375,7 +376,7 @@ impl Simulation {
         if changes == GridChanges::default() {
             return Ok(changes);
         }
-        let model = HexModel::from_grid(&hex.grid);
+        let model = hex.model.updated(&hex.grid, &changes);
         let old = &hex.model;
         // Grid node id → index in the old model (ids beyond the old ones are new nodes).
         let mut old_index =
@@ -388,6 +389,7 @@ impl Simulation {
         let n = model.node_count();
         let mut state = State { x: model.rest.clone(), v: vec![[0.0; 3]; n] };
         let mut known = vec![false; n];
+        let mut old_of_new: Vec<Option<usize>> = vec![None; n];
         for (i, &g) in model.grid_node.iter().enumerate() {
             let source = match added.get(&g) {
                 Some(origin) => *origin,
@@ -399,6 +401,7 @@ impl Simulation {
                 state.x[i] = self.state.x[j as usize];
                 state.v[i] = self.state.v[j as usize];
                 known[i] = true;
+                old_of_new[i] = Some(j as usize);
             }
         }
         for e in &model.elements {
@@ -437,7 +440,7 @@ impl Simulation {
         hex.loads = patch_loads(&self.config, &model)
             .unwrap_or(Loads { gravity: self.config.gravity, nodal: Vec::new() });
         if let Integrator::Implicit(be) = &mut hex.integrator {
-            be.reset_warm_start();
+            be.remap_warm_start(&old_of_new);
         }
         hex.model = model;
         self.state = state;

@@ -32,8 +32,23 @@ pub struct CgReport {
     pub converged: bool,
 }
 
+/// `a · b` summed in four fixed lanes (components `i mod 4` of the flattened vectors), combined
+/// as `(l0 + l1) + (l2 + l3)`: the compiler keeps the lanes in one vector register, and the order
+/// is fixed, so the result is deterministic.
 fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1] + x[2] * y[2]).sum()
+    let (a, b) = (a.as_flattened(), b.as_flattened());
+    let mut lanes = [0.0f64; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for k in 0..4 {
+            lanes[k] += x[k] * y[k];
+        }
+    }
+    for (k, (x, y)) in ra.iter().zip(rb).enumerate() {
+        lanes[k] += x * y;
+    }
+    (lanes[0] + lanes[1]) + (lanes[2] + lanes[3])
 }
 
 /// Inverse of a 3×3 block, or zero when it is singular (a node no element stiffens).

@@ -231,22 +231,24 @@ impl HexForceField {
         );
     }
 
-    /// The 3×3 diagonal blocks of the (rotated) stiffness, per node: `R K_cc Rᵀ` summed.
+    /// The 3×3 diagonal blocks of the (rotated) stiffness, per node: `R K_cc Rᵀ` summed (in
+    /// element order).
     #[must_use]
     pub fn diagonal_blocks(&self, model: &HexModel) -> Vec<Mat3> {
-        let mut out = vec![[[0.0; 3]; 3]; model.node_count()];
-        for (e, el) in model.elements.iter().enumerate() {
+        let rotated = self.formulation == Formulation::Corotational;
+        let per_element: Vec<[Mat3; 8]> = map_elements(model.elements.len(), |e| {
+            let el = &model.elements[e];
             let r = &self.matrices[e];
-            for (c, &n) in el.nodes.iter().enumerate() {
-                let mut k: Mat3 = std::array::from_fn(|i| {
+            std::array::from_fn(|c| {
+                let k: Mat3 = std::array::from_fn(|i| {
                     std::array::from_fn(|j| el.stiffness.get(3 * c + i, 3 * c + j))
                 });
-                if self.formulation == Formulation::Corotational {
-                    k = incise_math::mat3::mul(
-                        &incise_math::mat3::mul(r, &k),
-                        &incise_math::mat3::transpose(r),
-                    );
-                }
+                if rotated { rotate_symmetric(r, &k) } else { k }
+            })
+        });
+        let mut out = vec![[[0.0; 3]; 3]; model.node_count()];
+        for (el, blocks) in model.elements.iter().zip(&per_element) {
+            for (&n, k) in el.nodes.iter().zip(blocks) {
                 let d = &mut out[n as usize];
                 for i in 0..3 {
                     for j in 0..3 {
@@ -268,6 +270,23 @@ impl HexForceField {
         });
         per_element.iter().sum()
     }
+}
+
+/// `R K Rᵀ` for a symmetric `K`: the upper triangle computed, the lower mirrored (exactly
+/// symmetric, 45 multiplications instead of 54).
+fn rotate_symmetric(r: &Mat3, k: &Mat3) -> Mat3 {
+    let t: Mat3 = std::array::from_fn(|i| {
+        std::array::from_fn(|j| r[i][0] * k[0][j] + r[i][1] * k[1][j] + r[i][2] * k[2][j])
+    });
+    let mut out = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in i..3 {
+            let v = t[i][0] * r[j][0] + t[i][1] * r[j][1] + t[i][2] * r[j][2];
+            out[i][j] = v;
+            out[j][i] = v;
+        }
+    }
+    out
 }
 
 thread_local! {

@@ -585,8 +585,8 @@ fn remove_voxel_cells(
     }
     doomed.sort_unstable();
     doomed.dedup();
-    for (k, cell) in tet.cells.clone().iter().enumerate() {
-        if doomed.binary_search(cell).is_ok() {
+    for k in 0..tet.cells.len() {
+        if doomed.binary_search(&tet.cells[k]).is_ok() {
             for t in 6 * k..6 * k + 6 {
                 tet.force_field.remove_tet(&tet.model, &mut tet.topology, t);
             }

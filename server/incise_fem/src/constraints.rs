@@ -63,6 +63,22 @@ impl FixedNodes {
         self.fixed.iter().filter(|&&f| f).count()
     }
 
+    /// How far `f` (the net force per node) is from equilibrium: the largest force component on a
+    /// free node over the largest on a fixed one (the reaction). Infinite when a force is not
+    /// finite (`max` would skip a NaN).
+    #[must_use]
+    pub fn residual_ratio(&self, f: &[Vec3]) -> f64 {
+        let (mut free, mut held) = (0.0f64, 0.0f64);
+        for (fi, &fixed) in f.iter().zip(&self.fixed) {
+            if fi.iter().any(|c| !c.is_finite()) {
+                return f64::INFINITY;
+            }
+            let m = fi.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+            if fixed { held = held.max(m) } else { free = free.max(m) }
+        }
+        free / held.max(f64::MIN_POSITIVE)
+    }
+
     /// Zeroes the fixed nodes' entries of `v`.
     pub fn project(&self, v: &mut [Vec3]) {
         for (x, &f) in v.iter_mut().zip(&self.fixed) {

@@ -131,12 +131,7 @@ fn attempt(problem: &Statics<'_>, dt: f64, x: &mut [Vec3], settings: RelaxSettin
             if let Some(p) = penalty {
                 p.add_forces(model, |t| topo.is_alive(t), x, &mut f);
             }
-            let (mut free, mut held) = (0.0f64, 0.0f64);
-            for (i, fi) in f.iter().enumerate() {
-                let m = fi.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-                if fixed.is_fixed(i) { held = held.max(m) } else { free = free.max(m) }
-            }
-            residual = free / held.max(f64::MIN_POSITIVE);
+            residual = fixed.residual_ratio(&f);
             if residual <= settings.tolerance {
                 return RelaxReport { steps: step, dt, residual, converged: true };
             }

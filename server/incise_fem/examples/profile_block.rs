@@ -1,5 +1,8 @@
 //! Steps the hanging block of scene B for profiling (`perf record`), printing the time per step
 //! and the CG iterations: `cargo run --release -p incise_fem --example profile_block -- 22,15,12 implicit 0.01 50`.
+//! Schemes: `implicit` (Jacobi-CG), `cholesky-cg` (`REFRESH=n` caps the iterations before a
+//! refactorisation), `cholesky`, `explicit`, and `solve-only` (times one factorisation and the
+//! triangular solves; `SINGLE=1` keeps the factor in `f32`).
 
 use incise_fem::cg::CgSettings;
 use incise_fem::integrate::{BackwardEuler, LinearSolver, Loads, Rayleigh, State, explicit_step};
@@ -30,7 +33,9 @@ fn main() {
     let mut ff = HexForceField::new(&model, Formulation::Corotational);
     let damping = Rayleigh { alpha: 2.0, beta: 0.01 };
     let solver = match scheme.as_str() {
-        "cholesky-cg" => LinearSolver::CholeskyCg { refresh_iterations: 8 },
+        "cholesky-cg" => LinearSolver::CholeskyCg {
+            refresh_iterations: std::env::var("REFRESH").map_or(8, |v| v.parse().expect("REFRESH")),
+        },
         "cholesky" => LinearSolver::Cholesky,
         _ => LinearSolver::JacobiCg,
     };
@@ -41,8 +46,21 @@ fn main() {
         solver,
     );
     if scheme == "solve-only" {
-        let mut f = incise_fem::cholesky::SystemFactor::new(&model, &fixed).expect("pattern");
+        let precision = if std::env::var("SINGLE").is_ok() {
+            incise_fem::cholesky::Precision::Single
+        } else {
+            incise_fem::cholesky::Precision::Double
+        };
+        let mut f = incise_fem::cholesky::SystemFactor::with_precision(&model, &fixed, precision)
+            .expect("pattern");
+        let start = std::time::Instant::now();
         f.factorize(&model, &ff, 1.0, dt * dt).expect("factor");
+        println!(
+            "factor: {} entries, {:.3e} work, {:.1} ms",
+            f.factor_entries(),
+            f.factor_work(),
+            1e3 * start.elapsed().as_secs_f64()
+        );
         let r = vec![[1.0, 2.0, 3.0]; model.node_count()];
         let mut z = r.clone();
         let start = std::time::Instant::now();

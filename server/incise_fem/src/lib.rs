@@ -15,7 +15,9 @@ pub mod hex_force;
 pub mod integrate;
 mod kernel;
 pub mod model;
+pub mod ordering;
 mod parallel;
+mod supernodal;
 pub mod tet;
 
 pub use constraints::FixedNodes;

@@ -3,7 +3,7 @@
 //! depend on the thread count.
 
 use incise_fem::cg::CgSettings;
-use incise_fem::integrate::{BackwardEuler, Loads, Rayleigh, State, static_solve};
+use incise_fem::integrate::{BackwardEuler, LinearSolver, Loads, Rayleigh, State, static_solve};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, Material, MaterialTable};
@@ -83,28 +83,37 @@ fn implicit_euler_settles_on_the_static_answer() {
 
 #[test]
 fn results_do_not_depend_on_the_thread_count() {
-    // 1,200 elements: above the threshold where element loops use two threads.
-    let (model, fixed, loads) = scene_b([15, 10, 8]);
-    let run = |threads: &str| {
+    // 1,728 elements: above the threshold where element loops use two threads; its Cholesky
+    // factor is big enough that the substitutions run the two halves of the dissection on two
+    // threads.
+    let (model, fixed, loads) = scene_b([16, 12, 9]);
+    let run = |threads: &str, solver: LinearSolver| {
         incise_fem::set_thread_override(threads.parse().ok());
         let mut ff = HexForceField::new(&model, Formulation::Corotational);
         let mut state = State::at_rest(&model);
-        let mut be =
-            BackwardEuler::new(1e-2, Rayleigh { alpha: 2.0, beta: 0.01 }, CgSettings::default());
+        let mut be = BackwardEuler::with_solver(
+            1e-2,
+            Rayleigh { alpha: 2.0, beta: 0.01 },
+            CgSettings::default(),
+            solver,
+        );
         for _ in 0..5 {
             be.step(&model, &mut ff, &fixed, &loads, &mut state);
         }
+        incise_fem::set_thread_override(None);
         state
     };
-    let one = run("1");
-    let two = run("2");
-    assert!(
-        one.x
-            .iter()
-            .zip(&two.x)
-            .all(|(a, b)| a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits())),
-        "positions differ bitwise"
-    );
+    for solver in [LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }] {
+        let one = run("1", solver);
+        let two = run("2", solver);
+        assert!(
+            one.x
+                .iter()
+                .zip(&two.x)
+                .all(|(a, b)| a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits())),
+            "{solver:?}: positions differ bitwise"
+        );
+    }
 }
 
 #[test]
@@ -130,7 +139,6 @@ fn an_inverted_corner_recovers_its_rest_shape() {
 
 #[test]
 fn cholesky_solvers_agree_with_jacobi_cg() {
-    use incise_fem::integrate::LinearSolver;
     let (model, fixed, loads) = scene_b([7, 5, 4]);
     let run = |solver: LinearSolver| {
         let mut ff = HexForceField::new(&model, Formulation::Corotational);

@@ -2,6 +2,7 @@
 //! with `--json`, ends with one line holding one JSON object for scripts.
 
 mod grid_report;
+mod peers;
 mod plot;
 mod progress;
 mod speed_error;

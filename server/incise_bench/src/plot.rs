@@ -1,5 +1,6 @@
 //! The speed-vs-error plot (log-log, one series per model) drawn with `plotters` into a PNG, with
-//! the peers' published speeds (BENCHMARKS.md, first run) as labelled markers.
+//! the peers as labelled markers: measured on this machine at their error (`--peers`), or else
+//! their published speeds (BENCHMARKS.md, first run) in a band above 100 % error.
 
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
@@ -23,10 +24,12 @@ fn load_font() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Draws `(model, scene, steps/s, error, stable)` points to `path`.
+/// Draws `(model, scene, steps/s, error, stable)` points to `path`, and the `measured` peers'
+/// `(label, steps/s, error)` points (or, without them, the published speeds).
 pub fn speed_error_png(
     path: &Path,
     points: &[(&str, &str, f64, Option<f64>, bool)],
+    measured: Option<&[(String, f64, f64)]>,
 ) -> anyhow::Result<()> {
     load_font()?;
     let usable: Vec<(&str, f64, f64)> = points
@@ -37,15 +40,17 @@ pub fn speed_error_png(
         .collect();
     let (mut x_lo, mut x_hi) = (1.0f64, 1e4f64);
     let (mut y_lo, mut y_hi) = (1e-3f64, 1.0f64);
-    for &(_, s, e) in &usable {
+    let peer_points = measured.unwrap_or_default().iter().map(|(_, s, e)| (*s, *e));
+    for (s, e) in usable.iter().map(|&(_, s, e)| (s, e)).chain(peer_points) {
         x_lo = x_lo.min(s / 2.0);
         x_hi = x_hi.max(s * 2.0);
         y_lo = y_lo.min(e / 2.0);
         y_hi = y_hi.max(e * 2.0);
     }
-    // The peers' band sits above 100 % error, where no measured point can be.
+    // Without measured peers, the published speeds sit in a band above 100 % error, where no
+    // measured point can be.
     let band = y_hi.max(1.0) * 1.2;
-    let y_hi = band * 1.25f64.powi(10);
+    let y_hi = if measured.is_some() { y_hi } else { band * 1.25f64.powi(10) };
     let root = BitMapBackend::new(path, (1000, 700)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
@@ -71,6 +76,28 @@ pub fn speed_error_png(
             .draw_series(series.iter().map(|&(x, y)| Circle::new((x, y), 5, color.filled())))?
             .label(*model)
             .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
+    }
+    if let Some(measured) = measured {
+        let color = Palette99::pick(6).to_rgba();
+        for (label, rate, error) in measured {
+            chart.draw_series(std::iter::once(TriangleMarker::new(
+                (*rate, *error),
+                7,
+                color.filled(),
+            )))?;
+            chart.draw_series(std::iter::once(Text::new(
+                label.clone(),
+                (*rate, *error),
+                ("sans-serif", 11),
+            )))?;
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        return Ok(());
     }
     for (k, (name, rates)) in PEERS.iter().enumerate() {
         let color = Palette99::pick(k + 6).to_rgba();

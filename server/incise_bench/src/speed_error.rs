@@ -52,6 +52,42 @@ pub struct SpeedErrorArgs {
     /// Draw speed against error (log-log) to this PNG.
     #[arg(long, value_name = "PATH")]
     png: Option<PathBuf>,
+    /// The table `../shared/peers/bench_mujoco.py S1 S2 S3 nocant` printed, saved to a file (run it
+    /// right before or after, on the same machine): its rows get their error against the same
+    /// reference, go on the plot, and are compared with our fastest stable row at equal or lower
+    /// error and the same dt.
+    #[arg(long, value_name = "PATH")]
+    peers: Option<PathBuf>,
+}
+
+/// A peer's point against ours at equal error.
+#[derive(Clone, Debug, Serialize)]
+struct PeerComparison {
+    peer: String,
+    scene: String,
+    dt: f64,
+    steps_per_s: f64,
+    /// The peer's error against the scene's reference (`None` when it blew up, or its scene was
+    /// not in this run).
+    error: Option<f64>,
+    /// Whether the peer stayed stable at this dt.
+    stable: bool,
+    /// Our fastest stable row at the same dt with an error at most the peer's.
+    ours: Option<OursAtEqualError>,
+    /// Our steps/s over the peer's.
+    ratio: Option<f64>,
+}
+
+/// The row of ours a peer is compared with.
+#[derive(Clone, Debug, Serialize)]
+struct OursAtEqualError {
+    scene: String,
+    resolution: String,
+    model: &'static str,
+    integrator: &'static str,
+    solver: &'static str,
+    steps_per_s: f64,
+    error: f64,
 }
 
 /// One configuration's figures.
@@ -317,6 +353,8 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         }
     }
     let bar = crate::progress::stages(cases.len() as u64);
+    // Read before the long measurement, so a bad file fails at once.
+    let peer_points = args.peers.as_deref().map(crate::peers::read_mujoco).transpose()?;
     let mut rows = Vec::new();
     for case in &cases {
         bar.set_message(format!("{} {}", case.scene, case.resolution));
@@ -414,23 +452,128 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             None => println!("no stable configuration is within {:.1} % error", limit * 100.0),
         }
     }
+    let comparisons =
+        peer_points.map(|points| compare_with_peers(&points, &rows, &cases)).unwrap_or_default();
+    if !comparisons.is_empty() {
+        print_comparisons(&comparisons);
+    }
     if let Some(path) = &args.csv {
         write_csv(path, &rows).with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.png {
+        let peers: Vec<(String, f64, f64)> = comparisons
+            .iter()
+            .filter_map(|c| {
+                let label = format!("{} {} {} ms", c.peer, c.scene, c.dt * 1e3);
+                Some((label, c.steps_per_s, c.error?))
+            })
+            .collect();
         crate::plot::speed_error_png(
             path,
             &rows
                 .iter()
                 .map(|r| (r.model, r.scene.as_str(), r.steps_per_s, r.error, r.stable))
                 .collect::<Vec<_>>(),
+            args.peers.is_some().then_some(peers.as_slice()),
         )
         .with_context(|| format!("drawing {}", path.display()))?;
     }
     if args.json {
-        println!("{}", serde_json::json!({ "rows": rows }));
+        if args.peers.is_some() {
+            println!("{}", serde_json::json!({ "rows": rows, "peers": comparisons }));
+        } else {
+            println!("{}", serde_json::json!({ "rows": rows }));
+        }
     }
     Ok(())
+}
+
+/// Each peer point's error against its scene's reference, and our fastest stable row at the same
+/// dt whose error is at most the peer's (any model, integrator and resolution of scene B: equal
+/// error, not equal element count).
+fn compare_with_peers(
+    points: &[crate::peers::PeerPoint],
+    rows: &[Row],
+    cases: &[Case],
+) -> Vec<PeerComparison> {
+    points
+        .iter()
+        .map(|p| {
+            let reference = cases.iter().find(|c| c.scene == p.scene).and_then(|c| c.reference);
+            let error = p.displacement.zip(reference).map(|(u, r)| (u - r).abs() / r);
+            let ours = error.and_then(|limit| {
+                rows.iter()
+                    .filter(|r| {
+                        r.stable
+                            && r.scene.starts_with('B')
+                            && (r.dt - p.dt).abs() < 1e-12
+                            && r.error.is_some_and(|e| e <= limit)
+                    })
+                    .max_by(|a, b| a.steps_per_s.total_cmp(&b.steps_per_s))
+                    .map(|r| OursAtEqualError {
+                        scene: r.scene.clone(),
+                        resolution: r.resolution.clone(),
+                        model: r.model,
+                        integrator: r.integrator,
+                        solver: r.solver,
+                        steps_per_s: r.steps_per_s,
+                        error: r.error.unwrap_or(f64::NAN),
+                    })
+            });
+            let ratio = ours.as_ref().map(|o| o.steps_per_s / p.steps_per_s);
+            PeerComparison {
+                peer: p.peer.clone(),
+                scene: p.scene.clone(),
+                dt: p.dt,
+                steps_per_s: p.steps_per_s,
+                error,
+                stable: p.displacement.is_some(),
+                ours,
+                ratio,
+            }
+        })
+        .collect()
+}
+
+fn print_comparisons(comparisons: &[PeerComparison]) {
+    println!();
+    println!(
+        "At equal error: each peer row against our fastest stable row at the same dt with an error at most the peer's"
+    );
+    println!(
+        "{:<32} {:<5} {:>6} {:>9} {:>10} | {:<40} {:>10} {:>8} {:>8}",
+        "peer", "scene", "dt ms", "error", "steps/s", "ours", "steps/s", "error", "ratio"
+    );
+    for c in comparisons {
+        let error = match c.error {
+            Some(e) => format!("{:.2} %", 100.0 * e),
+            None if !c.stable => "blew up".to_owned(),
+            None => "not run".to_owned(),
+        };
+        let (ours, rate, ours_error) = c.ours.as_ref().map_or(
+            ("none at this error".to_owned(), String::new(), String::new()),
+            |o| {
+                (
+                    format!("{} {} {} {}", o.scene, o.model, o.integrator, o.solver),
+                    format!("{:.1}", o.steps_per_s),
+                    format!("{:.2} %", 100.0 * o.error),
+                )
+            },
+        );
+        let ratio = c.ratio.map_or(String::new(), |r| format!("{r:.2}×"));
+        println!(
+            "{:<32} {:<5} {:>6} {:>9} {:>10.1} | {:<40} {:>10} {:>8} {:>8}",
+            c.peer,
+            c.scene,
+            c.dt * 1e3,
+            error,
+            c.steps_per_s,
+            ours,
+            rate,
+            ours_error,
+            ratio
+        );
+    }
 }
 
 /// Paper 2's tensor-mass model (linear and St Venant-Kirchhoff, explicit central differences) on

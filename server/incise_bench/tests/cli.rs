@@ -149,3 +149,51 @@ fn speed_error_report_writes_table_csv_png_and_json() {
     assert_eq!(&png_bytes[..8], b"\x89PNG\r\n\x1a\n", "a PNG file");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn speed_error_compares_measured_peers_at_equal_error() {
+    let dir = std::env::temp_dir().join(format!("incise-peers-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let table = dir.join("mujoco.txt");
+    // Two rows as `bench_mujoco.py` prints them: one settled at 11.7 mm, one that blew up.
+    std::fs::write(
+        &table,
+        "# MuJoCo 4.0.0 flexcomp dim=3\n\
+         discrete   S1  840  240  2000  1859.7  1821.8  1873.5  stable  0.0117  stable  0.0121\n\
+         Euler      S1  840  240  2000  7867.4  7777.1  7910.4  blow-up (BADQACC reset)  nan  \
+         blow-up (BADQACC reset)  nan\n",
+    )
+    .unwrap();
+    let out = bench()
+        .args(["speed-error", "--scene", "b1", "--steps", "2", "--repeats", "1"])
+        .args(["--stable-seconds", "0.02", "--json", "--peers"])
+        .arg(&table)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    let peers = j["peers"].as_array().unwrap();
+    assert_eq!(peers.len(), 2);
+    let implicit = &peers[0];
+    let reference = 0.012_995_5; // the 33×22×18 static answer (m), to the digits printed
+    let error = implicit["error"].as_f64().unwrap();
+    assert!((error - (reference - 0.0117) / reference).abs() < 1e-4, "{implicit}");
+    let ours = &implicit["ours"];
+    assert!(
+        ours["error"].as_f64().unwrap() <= error,
+        "ours is at equal or lower error: {implicit}"
+    );
+    let ratio = implicit["ratio"].as_f64().unwrap();
+    assert!((ratio - ours["steps_per_s"].as_f64().unwrap() / 1859.7).abs() < 1e-9);
+    assert!(peers[1]["error"].is_null() && peers[1]["ours"].is_null(), "blew up: {}", peers[1]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("At equal error") && stdout.contains("blew up"), "{stdout}");
+
+    std::fs::write(&table, "no table here\n").unwrap();
+    let out =
+        bench().args(["speed-error", "--scene", "b1", "--peers"]).arg(&table).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("mujoco.txt") && err.contains("no rows"), "names file and problem: {err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

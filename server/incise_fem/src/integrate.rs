@@ -12,7 +12,7 @@
 use crate::cg::{CgReport, CgSettings, block_jacobi, invert_block, solve};
 use crate::cholesky::{Precision, SystemFactor};
 use crate::constraints::FixedNodes;
-use crate::hex_force::HexForceField;
+use crate::hex_force::{Formulation, HexForceField};
 use crate::model::HexModel;
 use incise_math::Vec3;
 
@@ -244,6 +244,8 @@ pub struct BackwardEuler {
     refresh: bool,
     /// CG iterations of each step since the last refactorisation.
     since_refresh: Vec<usize>,
+    /// The `(a, b)` of the direct solver's factor `a·M + b·K`.
+    factored_for: Option<(f64, f64)>,
     /// Factorisations computed so far (a counter for reports).
     pub factorizations: usize,
 }
@@ -267,6 +269,7 @@ impl BackwardEuler {
             factor: None,
             refresh: true,
             since_refresh: Vec::new(),
+            factored_for: None,
             factorizations: 0,
         }
     }
@@ -352,7 +355,11 @@ impl BackwardEuler {
                 report
             }
             LinearSolver::Cholesky => {
-                self.refresh = true;
+                // The linear model's matrix only changes with the step, the damping or the
+                // topology (which resets the factor): one factorisation serves every step.
+                self.refresh |= ffr.formulation() == Formulation::Corotational
+                    || self.factored_for != Some((a, b));
+                self.factored_for = Some((a, b));
                 self.ensure_factor(model, ffr, fixed, a, b);
                 let mut rr = rhs.clone();
                 fixed.project(&mut rr);

@@ -327,6 +327,13 @@ impl SystemFactor {
         }
     }
 
+    /// Whether this factor was built for exactly these fixed nodes (same node count, same set).
+    #[must_use]
+    pub fn serves(&self, fixed: &FixedNodes) -> bool {
+        self.free.len() == fixed.node_count()
+            && self.free.iter().enumerate().all(|(n, &f)| (f == NONE) == fixed.is_fixed(n))
+    }
+
     /// Changes the precision of the next factorisation.
     pub fn set_precision(&mut self, precision: Precision) {
         self.precision = precision;

@@ -57,6 +57,12 @@ impl FixedNodes {
         self.fixed[n]
     }
 
+    /// Number of nodes (fixed or free) this set describes.
+    #[must_use]
+    pub fn node_count(&self) -> usize {
+        self.fixed.len()
+    }
+
     /// Number of fixed nodes.
     #[must_use]
     pub fn count(&self) -> usize {

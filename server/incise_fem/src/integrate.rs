@@ -246,6 +246,9 @@ pub struct BackwardEuler {
     since_refresh: Vec<usize>,
     /// The `(a, b)` of the direct solver's factor `a·M + b·K`.
     factored_for: Option<(f64, f64)>,
+    /// The factor was built for the model before a topology change that kept every node: good
+    /// as a preconditioner, but its element map is the old model's, so a refresh rebuilds it.
+    pattern_stale: bool,
     /// Factorisations computed so far (a counter for reports).
     pub factorizations: usize,
 }
@@ -270,21 +273,34 @@ impl BackwardEuler {
             refresh: true,
             since_refresh: Vec::new(),
             factored_for: None,
+            pattern_stale: false,
             factorizations: 0,
         }
     }
 
     /// Carries the warm start across a topology change: new node `i` starts from the last step's
-    /// velocity change of old node `old_of_new[i]` (zero when it has none). The factorisation is
-    /// dropped: the system's sparsity pattern changed with the topology.
+    /// velocity change of old node `old_of_new[i]` (zero when it has none).
+    ///
+    /// When every node kept its index (an edit that changed elements' matrices but no node, as
+    /// most cuts at a coarse level do), CG keeps the old factor as its preconditioner: it is still
+    /// symmetric positive definite and close, CG still meets its tolerance on the new system, and
+    /// the renewal rule refactorises when the extra iterations cost more than a factorisation.
+    /// Otherwise (and always for the direct solver, which must be exact) the factor is dropped
+    /// and rebuilt for the new sparsity pattern.
     pub fn remap_warm_start(&mut self, old_of_new: &[Option<usize>]) {
         let old = std::mem::take(&mut self.last_dv);
+        let same_nodes = old.len() == old_of_new.len()
+            && old_of_new.iter().enumerate().all(|(i, &o)| o == Some(i));
         self.last_dv = old_of_new
             .iter()
             .map(|o| o.and_then(|j| old.get(j).copied()).unwrap_or([0.0; 3]))
             .collect();
-        self.factor = None;
-        self.refresh = true;
+        if same_nodes && matches!(self.solver, LinearSolver::CholeskyCg { .. }) {
+            self.pattern_stale = self.factor.is_some();
+        } else {
+            self.factor = None;
+            self.refresh = true;
+        }
     }
 
     /// Forgets the warm start and the factorisation (after the topology changed).
@@ -292,6 +308,7 @@ impl BackwardEuler {
         self.last_dv.clear();
         self.factor = None;
         self.refresh = true;
+        self.pattern_stale = false;
     }
 
     /// Advances `state` by one step.
@@ -346,6 +363,10 @@ impl BackwardEuler {
                 solve(apply, block_jacobi(&pre), fixed, &rhs, &mut dv, self.cg)
             }
             LinearSolver::CholeskyCg { refresh_iterations } => {
+                // A node fixed or freed by the edit leaves the old factor without a pivot for it.
+                if self.pattern_stale && !self.factor.as_ref().is_some_and(|f| f.serves(fixed)) {
+                    self.factor = None;
+                }
                 self.ensure_factor(model, ffr, fixed, a, b);
                 let factor = self.factor.as_ref().expect("factorised above");
                 let report = solve(apply, |r, z| factor.solve(r, z), fixed, &rhs, &mut dv, self.cg);
@@ -398,7 +419,11 @@ impl BackwardEuler {
             LinearSolver::CholeskyCg { .. } => Precision::Single,
             _ => Precision::Double,
         };
+        if self.refresh && self.pattern_stale {
+            self.factor = None;
+        }
         if self.factor.is_none() {
+            self.pattern_stale = false;
             self.factor = Some(
                 SystemFactor::with_precision(model, fixed, precision)
                     .expect("the system pattern is valid"),

@@ -205,6 +205,18 @@ impl Supernodes {
         }
     }
 
+    /// Supernode `s`: its first column counted from `own_start`, its width, its off-diagonal row
+    /// pattern, and its column-major block of `height` rows.
+    #[allow(clippy::inline_always)]
+    #[inline(always)]
+    fn supernode<'a, T>(&'a self, s: usize, l: &'a [T], own_start: usize) -> Supernode<'a, T> {
+        let (start, size) = (self.begin[s] - own_start, self.begin[s + 1] - self.begin[s]);
+        let rows = &self.rows[self.pattern[s]..self.pattern[s + 1]];
+        let height = size + rows.len();
+        let block = &l[self.values[s]..self.values[s] + height * size];
+        Supernode { start, size, rows, height, block }
+    }
+
     /// One supernode of `L y = b`: its diagonal block, then its update of later rows (rows from
     /// `part.sep_start` are subtracted from `sep`).
     #[allow(clippy::inline_always)]
@@ -217,10 +229,7 @@ impl Supernodes {
         sep: &mut [T],
         scratch: &mut [T],
     ) {
-        let (start, size) = (self.begin[s] - part.own_start, self.begin[s + 1] - self.begin[s]);
-        let rows = &self.rows[self.pattern[s]..self.pattern[s + 1]];
-        let height = size + rows.len();
-        let block = &l[self.values[s]..self.values[s] + height * size];
+        let Supernode { start, size, rows, height, block } = self.supernode(s, l, part.own_start);
         let x = &mut *part.own;
         let tmp = &mut scratch[..rows.len()];
         tmp.fill(T::default());
@@ -258,10 +267,7 @@ impl Supernodes {
         sep: &[T],
         scratch: &mut [T],
     ) {
-        let (start, size) = (self.begin[s] - part.own_start, self.begin[s + 1] - self.begin[s]);
-        let rows = &self.rows[self.pattern[s]..self.pattern[s + 1]];
-        let height = size + rows.len();
-        let block = &l[self.values[s]..self.values[s] + height * size];
+        let Supernode { start, size, rows, height, block } = self.supernode(s, l, part.own_start);
         let x = &mut *part.own;
         let tmp = &mut scratch[..rows.len()];
         for (t, &r) in tmp.iter_mut().zip(rows) {
@@ -275,6 +281,15 @@ impl Supernodes {
             x[start + j] = (x[start + j] - inner - outer) / column[j];
         }
     }
+}
+
+/// One supernode's place and values (see [`Supernodes::supernode`]).
+struct Supernode<'a, T> {
+    start: usize,
+    size: usize,
+    rows: &'a [u32],
+    height: usize,
+    block: &'a [T],
 }
 
 /// The two substitutions.

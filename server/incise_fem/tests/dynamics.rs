@@ -9,18 +9,13 @@ use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, Material, MaterialTable};
 use incise_math::Vec3;
 
-const SIZE: Vec3 = [0.15, 0.10, 0.08];
+mod common;
+use common::SIZE;
 
 /// Scene B at `cells` hexahedra per axis: E = 3 kPa, ν = 0.45, ρ = 1000, top face fixed, gravity
 /// and a 0.5 N pull along (1, 1, −1)/√3 spread over the nodes within 22 mm of (0.15, 0.10, 0).
 fn scene_b(cells: [usize; 3]) -> (HexModel, FixedNodes, Loads) {
-    let spacing = std::array::from_fn(|a| SIZE[a] / cells[a] as f64);
-    let v = from_fn(cells, spacing, |_, _, _| 1);
-    let grid =
-        BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0)), 0)
-            .unwrap();
-    let model = HexModel::from_grid(&grid);
-    let fixed = FixedNodes::plane(&model.rest, 2, SIZE[2], 1e-9);
+    let (model, fixed) = common::block(cells);
     let corner = [SIZE[0], SIZE[1], 0.0];
     let patch: Vec<usize> = (0..model.node_count())
         .filter(|&n| {

@@ -4,22 +4,10 @@
 
 use incise_fem::cholesky::{Precision, SystemFactor};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
-use incise_grid::procedural::from_fn;
-use incise_grid::{BranchedGrid, Material, MaterialTable};
 use incise_math::Vec3;
 
-const SIZE: [f64; 3] = [0.15, 0.10, 0.08];
-
-fn block(cells: [usize; 3]) -> (HexModel, FixedNodes) {
-    let spacing = std::array::from_fn(|a| SIZE[a] / cells[a] as f64);
-    let v = from_fn(cells, spacing, |_, _, _| 1);
-    let grid =
-        BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0)), 0)
-            .unwrap();
-    let model = HexModel::from_grid(&grid);
-    let fixed = FixedNodes::plane(&model.rest, 2, SIZE[2], 1e-9);
-    (model, fixed)
-}
+mod common;
+use common::{SIZE, block};
 
 /// A deformed state, so the rotations are not all identity.
 fn twisted(model: &HexModel) -> HexForceField {

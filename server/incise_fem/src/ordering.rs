@@ -114,7 +114,7 @@ mod tests {
                 for x in 0..n[0] {
                     positions.push([x as f64 * 0.1, y as f64 * 0.1, z as f64 * 0.1]);
                     let mut list = Vec::new();
-                    for (dx, dy, dz) in itertools_cube() {
+                    for (dx, dy, dz) in neighbour_offsets() {
                         let (a, b, c) = (x as i64 + dx, y as i64 + dy, z as i64 + dz);
                         if (0..n[0] as i64).contains(&a)
                             && (0..n[1] as i64).contains(&b)
@@ -130,7 +130,7 @@ mod tests {
         (positions, adjacent)
     }
 
-    fn itertools_cube() -> impl Iterator<Item = (i64, i64, i64)> {
+    fn neighbour_offsets() -> impl Iterator<Item = (i64, i64, i64)> {
         (-1..=1).flat_map(|a| (-1..=1).flat_map(move |b| (-1..=1).map(move |c| (a, b, c))))
     }
 

@@ -16,6 +16,19 @@ impl FixedNodes {
         Self { fixed: vec![false; nodes] }
     }
 
+    /// The nodes in `list` (indices below `nodes`; repeats are fine).
+    ///
+    /// # Panics
+    /// If an index is not below `nodes`.
+    #[must_use]
+    pub fn from_list(nodes: usize, list: &[usize]) -> Self {
+        let mut fixed = vec![false; nodes];
+        for &n in list {
+            fixed[n] = true;
+        }
+        Self { fixed }
+    }
+
     /// Nodes whose rest position satisfies `inside`.
     #[must_use]
     pub fn by_position(rest: &[Vec3], inside: impl Fn(&Vec3) -> bool) -> Self {

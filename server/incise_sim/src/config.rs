@@ -141,6 +141,14 @@ pub enum FixedSpec {
         /// Upper corner.
         max: [f64; 3],
     },
+    /// Every node of every element (hexahedron, or a tensor-mass cell's tetrahedra) that holds a
+    /// voxel with this label: tissue held by an attachment segmented in the image (a ligament, a
+    /// vessel, a neighbouring organ). At a coarse level the whole element holding such a voxel is
+    /// held.
+    Label {
+        /// The voxel label (one of the scene's `[[materials]]`).
+        label: u16,
+    },
 }
 
 /// A force spread evenly over the nodes within `radius` of `centre`.
@@ -281,6 +289,7 @@ struct RawFixed {
     value: Option<Spanned<f64>>,
     min: Option<[f64; 3]>,
     max: Option<Spanned<[f64; 3]>>,
+    label: Option<Spanned<u16>>,
 }
 
 #[derive(Deserialize)]
@@ -664,7 +673,24 @@ impl SceneConfig {
         };
         let mut fixed = Vec::new();
         for (k, f) in raw.fixed.iter().enumerate() {
-            if let Some(axis) = &f.plane {
+            if let Some(label) = &f.label {
+                if f.plane.is_some() || f.min.is_some() || f.max.is_some() {
+                    return Err(c.invalid(
+                        label.span(),
+                        &format!("fixed[{k}].label"),
+                        "goes alone: a fixed region is a `plane`, a box (`min` + `max`) or a `label`",
+                    ));
+                }
+                let l = *label.get_ref();
+                if !materials.iter().any(|m| m.label == l) {
+                    return Err(c.invalid(
+                        label.span(),
+                        &format!("fixed[{k}].label"),
+                        format!("is {l}, which no `[[materials]]` entry has"),
+                    ));
+                }
+                fixed.push(FixedSpec::Label { label: l });
+            } else if let Some(axis) = &f.plane {
                 let a = match axis.get_ref().as_str() {
                     "x" => 0,
                     "y" => 1,
@@ -699,7 +725,9 @@ impl SceneConfig {
                 return Err(SceneError::Parse {
                     file: file.to_owned(),
                     line: 0,
-                    message: format!("fixed[{k}] needs `plane` + `value` or `min` + `max`"),
+                    message: format!(
+                        "fixed[{k}] needs `plane` + `value`, `min` + `max`, or `label`"
+                    ),
                 });
             }
         }

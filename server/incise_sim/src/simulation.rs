@@ -138,21 +138,47 @@ pub(crate) fn fixed_nodes(
     grid: &BranchedGrid,
     model: &HexModel,
 ) -> FixedNodes {
-    fixed_at(config, &model.rest, grid.element_size())
+    let labels = grid.fine_labels();
+    fixed_at(config, &model.rest, grid.element_size(), |label| {
+        model
+            .elements
+            .iter()
+            .filter(|e| grid.element_voxels(e.grid_id).iter().any(|&v| labels[v as usize] == label))
+            .flat_map(|e| e.nodes.iter().map(|&n| n as usize))
+            .collect()
+    })
 }
 
-/// The nodes at `rest` in the scene's fixed regions (`size`: the element size, for tolerances).
-fn fixed_at(config: &SceneConfig, rest: &[Vec3], size: Vec3) -> FixedNodes {
+/// The nodes at `rest` in the scene's fixed regions (`size`: the element size, for tolerances;
+/// `held(label)`: the nodes of the elements holding a voxel with `label`).
+fn fixed_at(
+    config: &SceneConfig,
+    rest: &[Vec3],
+    size: Vec3,
+    held: impl Fn(u16) -> Vec<usize>,
+) -> FixedNodes {
     let tolerance = 1e-9 * size.iter().copied().fold(0.0, f64::max);
     let mut fixed = FixedNodes::none(rest.len());
     for f in &config.fixed {
         let region = match f {
             FixedSpec::Plane { axis, value } => FixedNodes::plane(rest, *axis, *value, tolerance),
             FixedSpec::Box { min, max } => FixedNodes::aabb(rest, *min, *max),
+            FixedSpec::Label { label } => FixedNodes::from_list(rest.len(), &held(*label)),
         };
         fixed = fixed.union(&region);
     }
     fixed
+}
+
+/// The labels a scene holds by (`[[fixed]] label`) that no voxel of its model carries: a hold
+/// that would hold nothing is an error when the scene is built.
+fn missing_label_holds(config: &SceneConfig, present: impl Fn(u16) -> bool) -> Option<String> {
+    config.fixed.iter().enumerate().find_map(|(k, f)| match f {
+        FixedSpec::Label { label } if !present(*label) => {
+            Some(format!("fixed[{k}].label: no voxel of the volume has label {label}"))
+        }
+        _ => None,
+    })
 }
 
 /// Gravity plus the scene's patch loads spread over the model's nodes.
@@ -240,6 +266,10 @@ impl Simulation {
             ModelKind::Corotational | ModelKind::TensorMass => Formulation::Corotational,
         };
         let force_field = HexForceField::new(&model, formulation);
+        let labels = grid.fine_labels();
+        if let Some(message) = missing_label_holds(config, |l| labels.contains(&l)) {
+            return Err(build(message));
+        }
         let fixed = fixed_nodes(config, &grid, &model);
         let loads = patch_loads(config, &model).map_err(build)?;
         let damping = Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta };
@@ -531,7 +561,30 @@ fn tet_body(
     }
     let step = f64::from(1u32 << config.level);
     let size: Vec3 = std::array::from_fn(|a| step * volume.spacing()[a]);
-    let fixed = fixed_at(config, &model.rest, size);
+    if let Some(message) = missing_label_holds(config, |l| volume.labels().contains(&l)) {
+        return Err(message);
+    }
+    // A cell's tetrahedra are held when the cell holds a voxel with the label.
+    let fixed = fixed_at(config, &model.rest, size, |label| {
+        let step = 1usize << config.level;
+        let dims = volume.dims();
+        let labels = volume.labels();
+        let holds = |c: &[usize; 3]| {
+            (c[2] * step..((c[2] + 1) * step).min(dims[2])).any(|z| {
+                (c[1] * step..((c[1] + 1) * step).min(dims[1])).any(|y| {
+                    (c[0] * step..((c[0] + 1) * step).min(dims[0]))
+                        .any(|x| labels[x + dims[0] * (y + dims[1] * z)] == label)
+                })
+            })
+        };
+        cells
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| holds(c))
+            .flat_map(|(g, _)| (6 * g..6 * g + 6).flat_map(|t| mesh.tets()[t]))
+            .map(|v| v as usize)
+            .collect()
+    });
     let mut external = patch_forces(config, &model.rest)?;
     for (f, m) in external.iter_mut().zip(&model.lumped_mass) {
         for a in 0..3 {

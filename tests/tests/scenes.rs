@@ -379,3 +379,24 @@ fn the_liver_hangs_from_its_gallbladder() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn an_explicit_scene_reports_its_stable_step() {
+    let build = |text: &str| {
+        let config = SceneConfig::from_toml(text, "t.toml").unwrap();
+        let volume = config.procedural_volume().unwrap();
+        Simulation::new(&config, &volume, "t.toml")
+    };
+    assert_eq!(build(GOOD).unwrap().explicit_stable_dt(), None, "implicit: no limit");
+    let explicit =
+        GOOD.replace("kind = \"implicit-euler\"\ndt = 0.001", "kind = \"explicit\"\ndt = 1e-4");
+    let sim = build(&explicit).unwrap();
+    let limit = sim.explicit_stable_dt().expect("explicit: its limit");
+    assert!(limit >= 1e-4, "dt is within the limit it was checked against ({limit:e})");
+    // Above the limit the scene is refused, and the message gives the limit.
+    let err =
+        build(&explicit.replace("dt = 1e-4", &format!("dt = {}", 2.0 * limit))).err().unwrap();
+    assert!(err.to_string().contains(&format!("{limit:.3e}")), "{err}");
+    let tm = build(&tensor_mass_scene("", "1e-4")).unwrap();
+    assert!(tm.explicit_stable_dt().is_some_and(|l| l >= 1e-4));
+}

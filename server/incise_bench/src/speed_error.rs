@@ -356,6 +356,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     // Read before the long measurement, so a bad file fails at once.
     let peer_points = args.peers.as_deref().map(crate::peers::read_mujoco).transpose()?;
     let mut rows = Vec::new();
+    let mut explicit_limits = Vec::new();
     for case in &cases {
         bar.set_message(format!("{} {}", case.scene, case.resolution));
         let explicit_limit = stable_dt(
@@ -363,6 +364,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             &HexForceField::new(&case.model, Formulation::Linear),
             &case.fixed,
         );
+        explicit_limits.push((case.scene.clone(), case.resolution.clone(), explicit_limit));
         for formulation in [Formulation::Corotational, Formulation::Linear] {
             let error = case.reference.map(|r| (static_answer(case, formulation) - r).abs() / r);
             // The linear model's matrix is constant: one exact factorisation serves every step,
@@ -439,6 +441,13 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
     print_table(&rows);
+    println!();
+    println!(
+        "explicit stable dt per mesh (rest stiffness; an explicit row runs only at or below it):"
+    );
+    for (scene, resolution, limit) in &explicit_limits {
+        println!("  {scene:<11} {resolution:<14} {limit:.3e} s");
+    }
     if let Some(limit) = args.max_error {
         match rows
             .iter()

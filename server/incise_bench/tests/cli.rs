@@ -144,6 +144,7 @@ fn speed_error_report_writes_table_csv_png_and_json() {
     assert!(rows.iter().any(|r| r["stable"] == true && r["steps_per_s"].as_f64().unwrap() > 0.0));
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("fastest stable configuration within 50.0 %"), "{stdout}");
+    assert!(stdout.contains("explicit stable dt per mesh"), "{stdout}");
     assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 1 + rows.len());
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[..8], b"\x89PNG\r\n\x1a\n", "a PNG file");

@@ -53,8 +53,15 @@ pub struct Frame {
 
 enum Integrator {
     Implicit(Box<BackwardEuler>),
-    Explicit { dt: f64, alpha: f64 },
-    Static { tolerance: f64 },
+    /// `stable_dt`: the mesh's explicit stability limit (s), recomputed after every cut.
+    Explicit {
+        dt: f64,
+        alpha: f64,
+        stable_dt: f64,
+    },
+    Static {
+        tolerance: f64,
+    },
 }
 
 /// The hexahedral mechanics of a scene.
@@ -293,7 +300,11 @@ impl Simulation {
                         config.dt
                     )));
                 }
-                Integrator::Explicit { dt: config.dt, alpha: config.rayleigh_alpha }
+                Integrator::Explicit {
+                    dt: config.dt,
+                    alpha: config.rayleigh_alpha,
+                    stable_dt: limit,
+                }
             }
             IntegratorKind::Static => Integrator::Static { tolerance: config.cg_tolerance },
         };
@@ -344,7 +355,7 @@ impl Simulation {
                 counters.solver_iterations = r.iterations;
                 counters.solver_residual = r.relative_residual;
             }
-            Integrator::Explicit { dt, alpha } => {
+            Integrator::Explicit { dt, alpha, .. } => {
                 explicit_step(
                     &hex.model,
                     &mut hex.force_field,
@@ -469,8 +480,13 @@ impl Simulation {
         // A patch that lost all its nodes simply stops pulling.
         hex.loads = patch_loads(&self.config, &model)
             .unwrap_or(Loads { gravity: self.config.gravity, nodal: Vec::new() });
-        if let Integrator::Implicit(be) = &mut hex.integrator {
-            be.remap_warm_start(&old_of_new);
+        match &mut hex.integrator {
+            Integrator::Implicit(be) => be.remap_warm_start(&old_of_new),
+            // Cut elements hold less mass: the cut mesh's limit may be lower.
+            Integrator::Explicit { stable_dt: limit, .. } => {
+                *limit = stable_dt(&model, &hex.force_field, &self.fixed);
+            }
+            Integrator::Static { .. } => {}
         }
         hex.model = model;
         self.state = state;
@@ -481,6 +497,19 @@ impl Simulation {
     #[must_use]
     pub fn config(&self) -> &SceneConfig {
         &self.config
+    }
+
+    /// With an explicit integrator: the mesh's stable step (s), estimated from the rest
+    /// stiffness (after a cut, of the cut mesh). `None` for the implicit and static integrators.
+    #[must_use]
+    pub fn explicit_stable_dt(&self) -> Option<f64> {
+        match &self.body {
+            Body::Hex(hex) => match &hex.integrator {
+                Integrator::Explicit { stable_dt, .. } => Some(*stable_dt),
+                _ => None,
+            },
+            Body::Tet(tet) => Some(tet.stable_dt),
+        }
     }
 
     /// With `model.kind = "auto"`: the per-level error estimates and the level chosen.

@@ -242,8 +242,9 @@ pub struct BackwardEuler {
     last_dv: Vec<Vec3>,
     factor: Option<SystemFactor>,
     refresh: bool,
-    /// CG iterations of each step since the last refactorisation.
-    since_refresh: Vec<usize>,
+    /// Steps and CG iterations since the last refactorisation (a running count: a server that
+    /// never needs a refresh must not grow a list).
+    since_refresh: Cycle,
     /// The `(a, b)` of the direct solver's factor `a·M + b·K`.
     factored_for: Option<(f64, f64)>,
     /// The factor was built for the model before a topology change that kept every node: good
@@ -271,7 +272,7 @@ impl BackwardEuler {
             last_dv: Vec::new(),
             factor: None,
             refresh: true,
-            since_refresh: Vec::new(),
+            since_refresh: Cycle::default(),
             factored_for: None,
             pattern_stale: false,
             factorizations: 0,
@@ -370,9 +371,9 @@ impl BackwardEuler {
                 self.ensure_factor(model, ffr, fixed, a, b);
                 let factor = self.factor.as_ref().expect("factorised above");
                 let report = solve(apply, |r, z| factor.solve(r, z), fixed, &rhs, &mut dv, self.cg);
-                self.since_refresh.push(report.iterations);
+                self.since_refresh.record(report.iterations);
                 self.refresh = report.iterations > refresh_iterations
-                    || refresh_pays(&self.since_refresh, REFRESH_COST);
+                    || self.since_refresh.refresh_pays(REFRESH_COST);
                 report
             }
             LinearSolver::Cholesky => {
@@ -441,22 +442,34 @@ impl BackwardEuler {
             }
             self.factorizations += 1;
             self.refresh = false;
-            self.since_refresh.clear();
+            self.since_refresh = Cycle::default();
         }
     }
 }
 
-/// Whether to refactorise now, given the iterations of each step since the last factorisation and
-/// the cost of one in iterations. The iteration counts grow as the rotations drift from the
-/// factorised ones; the average cost per step of a cycle, `(cost + Σ iterations) / steps`, is least
-/// when the cycle ends as soon as the last step's count exceeds that average (the renewal rule for
-/// a growing running cost).
-fn refresh_pays(iterations: &[usize], cost: usize) -> bool {
-    let Some(&last) = iterations.last() else {
-        return false;
-    };
-    let total: usize = cost + iterations.iter().sum::<usize>();
-    last * iterations.len() > total
+/// The steps since the last factorisation: how many, their CG iterations in all, and the last
+/// step's.
+#[derive(Clone, Copy, Debug, Default)]
+struct Cycle {
+    steps: usize,
+    iterations: usize,
+    last: usize,
+}
+
+impl Cycle {
+    fn record(&mut self, iterations: usize) {
+        self.steps += 1;
+        self.iterations += iterations;
+        self.last = iterations;
+    }
+
+    /// Whether to refactorise now, a factorisation costing `cost` iterations. The iteration
+    /// counts grow as the rotations drift from the factorised ones; the average cost per step of a
+    /// cycle, `(cost + Σ iterations) / steps`, is least when the cycle ends as soon as the last
+    /// step's count exceeds that average (the renewal rule for a growing running cost).
+    fn refresh_pays(&self, cost: usize) -> bool {
+        self.steps > 0 && self.last * self.steps > cost + self.iterations
+    }
 }
 
 /// One symplectic-Euler step with lumped mass and mass-proportional damping α:
@@ -517,4 +530,28 @@ pub fn stable_dt(model: &HexModel, ff: &HexForceField, fixed: &FixedNodes) -> f6
         v = kv;
     }
     2.0 / lambda.sqrt()
+}
+
+#[cfg(test)]
+mod renewal_tests {
+    use super::Cycle;
+
+    #[test]
+    fn a_steady_count_never_refreshes_and_a_growing_one_refreshes_when_it_passes_the_average() {
+        let mut steady = Cycle::default();
+        for _ in 0..100_000 {
+            steady.record(2);
+            assert!(!steady.refresh_pays(30));
+        }
+        // Counts 2, 3, 4, …: after n steps the average is (30 + Σ) / n, and the count n + 1 first
+        // exceeds it at n = 9 (n = 8: 9 · 8 = 72 ≤ 30 + 44; n = 9: 10 · 9 = 90 > 30 + 54).
+        let mut growing = Cycle::default();
+        let first = (1..100)
+            .find(|&n| {
+                growing.record(n + 1);
+                growing.refresh_pays(30)
+            })
+            .unwrap();
+        assert_eq!(first, 9);
+    }
 }

@@ -145,8 +145,9 @@ pub(crate) fn fixed_nodes(
     grid: &BranchedGrid,
     model: &HexModel,
 ) -> FixedNodes {
-    let labels = grid.fine_labels();
+    // Only a label hold reads the labels (a copy of the fine level: not on every cut otherwise).
     fixed_at(config, &model.rest, grid.element_size(), |label| {
+        let labels = grid.fine_labels();
         model
             .elements
             .iter()

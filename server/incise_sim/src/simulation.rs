@@ -274,8 +274,7 @@ impl Simulation {
             ModelKind::Corotational | ModelKind::TensorMass => Formulation::Corotational,
         };
         let force_field = HexForceField::new(&model, formulation);
-        let labels = grid.fine_labels();
-        if let Some(message) = missing_label_holds(config, |l| labels.contains(&l)) {
+        if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l)) {
             return Err(build(message));
         }
         let fixed = fixed_nodes(config, &grid, &model);

@@ -390,9 +390,13 @@ fn an_explicit_scene_reports_its_stable_step() {
     assert_eq!(build(GOOD).unwrap().explicit_stable_dt(), None, "implicit: no limit");
     let explicit =
         GOOD.replace("kind = \"implicit-euler\"\ndt = 0.001", "kind = \"explicit\"\ndt = 1e-4");
-    let sim = build(&explicit).unwrap();
+    let mut sim = build(&explicit).unwrap();
     let limit = sim.explicit_stable_dt().expect("explicit: its limit");
     assert!(limit >= 1e-4, "dt is within the limit it was checked against ({limit:e})");
+    // After a cut the cut mesh's limit is estimated again.
+    sim.cut(&incise_grid::GridEdit { remove_voxels: vec![0], sever_links: vec![] }).unwrap();
+    let after = sim.explicit_stable_dt().expect("still explicit");
+    assert!(after.is_finite() && after > 0.0 && after.to_bits() != limit.to_bits(), "{after:e}");
     // Above the limit the scene is refused, and the message gives the limit.
     let err =
         build(&explicit.replace("dt = 1e-4", &format!("dt = {}", 2.0 * limit))).err().unwrap();

@@ -53,11 +53,12 @@ pub struct Frame {
 
 enum Integrator {
     Implicit(Box<BackwardEuler>),
-    /// `stable_dt`: the mesh's explicit stability limit (s), recomputed after every cut.
+    /// `stable_dt`: the mesh's explicit stability limit (s); `None` after a cut until asked for
+    /// (the estimate is a power iteration: not something every cut should pay for).
     Explicit {
         dt: f64,
         alpha: f64,
-        stable_dt: f64,
+        stable_dt: std::cell::Cell<Option<f64>>,
     },
     Static {
         tolerance: f64,
@@ -303,7 +304,7 @@ impl Simulation {
                 Integrator::Explicit {
                     dt: config.dt,
                     alpha: config.rayleigh_alpha,
-                    stable_dt: limit,
+                    stable_dt: std::cell::Cell::new(Some(limit)),
                 }
             }
             IntegratorKind::Static => Integrator::Static { tolerance: config.cg_tolerance },
@@ -482,10 +483,8 @@ impl Simulation {
             .unwrap_or(Loads { gravity: self.config.gravity, nodal: Vec::new() });
         match &mut hex.integrator {
             Integrator::Implicit(be) => be.remap_warm_start(&old_of_new),
-            // Cut elements hold less mass: the cut mesh's limit may be lower.
-            Integrator::Explicit { stable_dt: limit, .. } => {
-                *limit = stable_dt(&model, &hex.force_field, &self.fixed);
-            }
+            // Cut elements hold less mass: the cut mesh's limit may be lower; estimated when asked.
+            Integrator::Explicit { stable_dt: limit, .. } => limit.set(None),
             Integrator::Static { .. } => {}
         }
         hex.model = model;
@@ -500,12 +499,19 @@ impl Simulation {
     }
 
     /// With an explicit integrator: the mesh's stable step (s), estimated from the rest
-    /// stiffness (after a cut, of the cut mesh). `None` for the implicit and static integrators.
+    /// stiffness (after a cut, of the cut mesh, estimated at the first call). `None` for the
+    /// implicit and static integrators.
     #[must_use]
     pub fn explicit_stable_dt(&self) -> Option<f64> {
         match &self.body {
             Body::Hex(hex) => match &hex.integrator {
-                Integrator::Explicit { stable_dt, .. } => Some(*stable_dt),
+                Integrator::Explicit { stable_dt: limit, .. } => {
+                    Some(limit.get().unwrap_or_else(|| {
+                        let estimate = stable_dt(&hex.model, &hex.force_field, &self.fixed);
+                        limit.set(Some(estimate));
+                        estimate
+                    }))
+                }
                 _ => None,
             },
             Body::Tet(tet) => Some(tet.stable_dt),

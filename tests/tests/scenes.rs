@@ -404,3 +404,24 @@ fn an_explicit_scene_reports_its_stable_step() {
     let tm = build(&tensor_mass_scene("", "1e-4")).unwrap();
     assert!(tm.explicit_stable_dt().is_some_and(|l| l >= 1e-4));
 }
+
+#[test]
+fn the_mass_matrix_is_a_scene_key() {
+    let consistent = GOOD.replace("dt = 0.001", "dt = 0.001\nmass = \"consistent\"");
+    let config = SceneConfig::from_toml(&consistent, "t.toml").unwrap();
+    assert_eq!(config.mass, incise_fem::integrate::MassMatrix::Consistent);
+    let volume = config.procedural_volume().unwrap();
+    let mut sim = Simulation::new(&config, &volume, "t.toml").unwrap();
+    for _ in 0..5 {
+        let frame = sim.step();
+        assert!(frame.positions.iter().flatten().all(|c| c.is_finite()));
+        assert!(frame.counters.solver_residual <= 1e-6, "{:?}", frame.counters);
+    }
+    let e = error(&GOOD.replace("dt = 0.001", "dt = 0.001\nmass = \"heavy\""));
+    assert!(e.to_string().contains("integrator.mass") && e.to_string().contains("heavy"), "{e}");
+    let e = error(
+        &consistent
+            .replace("kind = \"implicit-euler\"\ndt = 0.001", "kind = \"explicit\"\ndt = 0.0001"),
+    );
+    assert!(e.to_string().contains("integrator.mass") && e.to_string().contains("diagonal"), "{e}");
+}

@@ -207,6 +207,9 @@ impl SystemFactor {
     }
 
     /// Factorises `a·M + b·K(R)` with the lumped mass and the force field's current rotations.
+    ///
+    /// # Errors
+    /// If the matrix is not numerically positive definite in this precision.
     pub fn factorize(
         &mut self,
         model: &HexModel,
@@ -214,12 +217,29 @@ impl SystemFactor {
         a: f64,
         b: f64,
     ) -> Result<(), FactorError> {
+        self.factorize_with(model, ff, a, b, false)
+    }
+
+    /// [`SystemFactor::factorize`] with the condensed consistent mass when `consistent`.
+    ///
+    /// # Errors
+    /// If the matrix is not numerically positive definite in this precision.
+    pub fn factorize_with(
+        &mut self,
+        model: &HexModel,
+        ff: &HexForceField,
+        a: f64,
+        b: f64,
+        consistent: bool,
+    ) -> Result<(), FactorError> {
         self.values.fill(0.0);
-        for (n, &f) in self.free.iter().enumerate() {
-            if f != NONE {
-                for p in 0..3 {
-                    self.values[self.diagonal[3 * f as usize + p] as usize] +=
-                        a * model.lumped_mass[n];
+        if !consistent {
+            for (n, &f) in self.free.iter().enumerate() {
+                if f != NONE {
+                    for p in 0..3 {
+                        self.values[self.diagonal[3 * f as usize + p] as usize] +=
+                            a * model.lumped_mass[n];
+                    }
                 }
             }
         }
@@ -227,6 +247,19 @@ impl SystemFactor {
             let r = ff.rotation(ei);
             let rt = transpose(r);
             let map = &self.entry[ei * 576..(ei + 1) * 576];
+            if consistent {
+                for ci in 0..8 {
+                    for cj in 0..8 {
+                        let m = a * e.mass[8 * ci + cj];
+                        for p in 0..3 {
+                            let pos = map[(3 * ci + p) * 24 + 3 * cj + p];
+                            if pos != NONE {
+                                self.values[pos as usize] += m;
+                            }
+                        }
+                    }
+                }
+            }
             for ci in 0..8 {
                 for cj in 0..8 {
                     let k: [[f64; 3]; 3] = std::array::from_fn(|p| {

@@ -95,12 +95,13 @@ fn norm(v: &[Vec3]) -> f64 {
 fn preconditioner(
     model: &HexModel,
     ff: &HexForceField,
+    mass: &[f64],
     a: f64,
     b: f64,
 ) -> Vec<incise_math::mat3::Mat3> {
     ff.diagonal_blocks(model)
         .iter()
-        .zip(&model.lumped_mass)
+        .zip(mass)
         .map(|(k, &m)| {
             let mut blk = [[0.0; 3]; 3];
             for i in 0..3 {
@@ -188,7 +189,7 @@ pub fn static_solve_with(
             let f = &*f;
             solve(apply, |r, z| f.solve(r, z), fixed, &r, &mut dx, settings)
         } else {
-            let pre = preconditioner(model, ffr, 0.0, 1.0);
+            let pre = preconditioner(model, ffr, &model.lumped_mass, 0.0, 1.0);
             solve(apply, block_jacobi(&pre), fixed, &r, &mut dx, settings)
         };
         cg_total += report.iterations;
@@ -229,6 +230,18 @@ pub enum LinearSolver {
 /// run and frames stay bit-identical.
 pub const REFRESH_COST: usize = 30;
 
+/// Which mass matrix an implicit step uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum MassMatrix {
+    /// The condensed consistent rows summed per node: diagonal, and what explicit integration
+    /// needs. Its vibration frequencies come out low.
+    #[default]
+    Lumped,
+    /// The condensed consistent mass `Mₑ ⊗ I₃` per element. Its frequencies come out high; it
+    /// costs an element loop more per CG iteration.
+    Consistent,
+}
+
 /// Linearised backward Euler with its solver state (CG warm start, factorisation).
 pub struct BackwardEuler {
     /// Time step (s).
@@ -239,6 +252,9 @@ pub struct BackwardEuler {
     pub cg: CgSettings,
     /// The linear solver.
     pub solver: LinearSolver,
+    /// The mass matrix of the system and of the mass damping (gravity is the same either way:
+    /// the consistent mass's rows sum to the lumped one).
+    pub mass: MassMatrix,
     last_dv: Vec<Vec3>,
     factor: Option<SystemFactor>,
     refresh: bool,
@@ -269,6 +285,7 @@ impl BackwardEuler {
             damping,
             cg,
             solver,
+            mass: MassMatrix::Lumped,
             last_dv: Vec::new(),
             factor: None,
             refresh: true,
@@ -333,11 +350,16 @@ impl BackwardEuler {
         let mut rhs = vec![[0.0; 3]; n];
         loads.add_to(model, &mut rhs);
         ff.add_forces_and_stiffness_times(model, &state.x, -(beta + h), &state.v, &mut rhs);
-        for (i, r) in rhs.iter_mut().enumerate() {
-            let m = model.lumped_mass[i];
-            for k in 0..3 {
-                r[k] -= alpha * m * state.v[i][k];
+        match self.mass {
+            MassMatrix::Lumped => {
+                for (i, r) in rhs.iter_mut().enumerate() {
+                    let m = model.lumped_mass[i];
+                    for k in 0..3 {
+                        r[k] -= alpha * m * state.v[i][k];
+                    }
+                }
             }
+            MassMatrix::Consistent => model.add_consistent_mass_times(-alpha, &state.v, &mut rhs),
         }
         for r in &mut rhs {
             for k in 0..3 {
@@ -351,16 +373,29 @@ impl BackwardEuler {
         }
         let mut dv = std::mem::take(&mut self.last_dv);
         let ffr = &*ff;
+        let consistent = self.mass == MassMatrix::Consistent;
         let apply = |p: &[Vec3], out: &mut [Vec3]| {
-            for (i, o) in out.iter_mut().enumerate() {
-                let m = a * model.lumped_mass[i];
-                *o = [m * p[i][0], m * p[i][1], m * p[i][2]];
+            if consistent {
+                out.fill([0.0; 3]);
+                model.add_consistent_mass_times(a, p, out);
+            } else {
+                for (i, o) in out.iter_mut().enumerate() {
+                    let m = a * model.lumped_mass[i];
+                    *o = [m * p[i][0], m * p[i][1], m * p[i][2]];
+                }
             }
             ffr.add_stiffness_times(model, b, p, out);
         };
         let report = match self.solver {
             LinearSolver::JacobiCg => {
-                let pre = preconditioner(model, ffr, a, b);
+                let diagonal;
+                let mass = if consistent {
+                    diagonal = model.consistent_mass_diagonal();
+                    &diagonal
+                } else {
+                    &model.lumped_mass
+                };
+                let pre = preconditioner(model, ffr, mass, a, b);
                 solve(apply, block_jacobi(&pre), fixed, &rhs, &mut dv, self.cg)
             }
             LinearSolver::CholeskyCg { refresh_iterations } => {
@@ -433,11 +468,12 @@ impl BackwardEuler {
         }
         if self.refresh {
             let factor = self.factor.as_mut().expect("created above");
-            if factor.factorize(model, ff, a, b).is_err() {
+            let consistent = self.mass == MassMatrix::Consistent;
+            if factor.factorize_with(model, ff, a, b, consistent).is_err() {
                 // Rounding to f32 can lose definiteness on a very stiff system: fall back to f64.
                 factor.set_precision(Precision::Double);
                 factor
-                    .factorize(model, ff, a, b)
+                    .factorize_with(model, ff, a, b, consistent)
                     .expect("a·M + b·K is positive definite on the free nodes");
             }
             self.factorizations += 1;

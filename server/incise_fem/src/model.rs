@@ -129,6 +129,37 @@ impl HexModel {
         model
     }
 
+    /// `out += scale · M p` with the condensed consistent mass (`Mₑ ⊗ I₃` per element), summed
+    /// in element order.
+    pub fn add_consistent_mass_times(&self, scale: f64, p: &[Vec3], out: &mut [Vec3]) {
+        for e in &self.elements {
+            for (a, &na) in e.nodes.iter().enumerate() {
+                let mut sum = [0.0; 3];
+                for (b, &nb) in e.nodes.iter().enumerate() {
+                    let m = e.mass[8 * a + b];
+                    for k in 0..3 {
+                        sum[k] += m * p[nb as usize][k];
+                    }
+                }
+                for k in 0..3 {
+                    out[na as usize][k] += scale * sum[k];
+                }
+            }
+        }
+    }
+
+    /// The diagonal of the condensed consistent mass, per node (kg).
+    #[must_use]
+    pub fn consistent_mass_diagonal(&self) -> Vec<f64> {
+        let mut d = vec![0.0; self.rest.len()];
+        for e in &self.elements {
+            for (a, &n) in e.nodes.iter().enumerate() {
+                d[n as usize] += e.mass[9 * a];
+            }
+        }
+        d
+    }
+
     /// Number of nodes.
     #[must_use]
     pub fn node_count(&self) -> usize {

@@ -188,6 +188,9 @@ pub struct SceneConfig {
     pub cg_tolerance: f64,
     /// Linear solver of the implicit integrator.
     pub solver: incise_fem::integrate::LinearSolver,
+    /// Mass matrix of the implicit integrator (`integrator.mass`: `"lumped"`, the default, or
+    /// `"consistent"`).
+    pub mass: incise_fem::integrate::MassMatrix,
     /// Rayleigh damping α (1/s).
     pub rayleigh_alpha: f64,
     /// Rayleigh damping β (s).
@@ -276,6 +279,8 @@ struct RawIntegrator {
     cg_tolerance: Option<Spanned<f64>>,
     #[serde(default)]
     solver: Option<Spanned<String>>,
+    #[serde(default)]
+    mass: Option<Spanned<String>>,
     #[serde(default)]
     rayleigh_alpha: Option<Spanned<f64>>,
     #[serde(default)]
@@ -636,6 +641,32 @@ impl SceneConfig {
                 "must be \"explicit\" with `model.kind = \"tensor-mass\"` (paper 2 integrates it explicitly)",
             ));
         }
+        let mass = match &i.mass {
+            None => incise_fem::integrate::MassMatrix::Lumped,
+            Some(m) => {
+                let kind = match m.get_ref().as_str() {
+                    "lumped" => incise_fem::integrate::MassMatrix::Lumped,
+                    "consistent" => incise_fem::integrate::MassMatrix::Consistent,
+                    other => {
+                        return Err(c.invalid(
+                            m.span(),
+                            "integrator.mass",
+                            format!("is \"{other}\"; expected \"lumped\" or \"consistent\""),
+                        ));
+                    }
+                };
+                if kind == incise_fem::integrate::MassMatrix::Consistent
+                    && integrator != IntegratorKind::ImplicitEuler
+                {
+                    return Err(c.invalid(
+                        m.span(),
+                        "integrator.mass",
+                        "\"consistent\" needs `kind = \"implicit-euler\"` (explicit steps need a diagonal mass)",
+                    ));
+                }
+                kind
+            }
+        };
         let dt = c.positive(&i.dt, "integrator.dt")?;
         if dt > 1.0 {
             return Err(c.invalid(
@@ -751,6 +782,7 @@ impl SceneConfig {
             dt,
             cg_tolerance,
             solver,
+            mass,
             rayleigh_alpha: c.non_negative(
                 i.rayleigh_alpha.as_ref(),
                 "integrator.rayleigh_alpha",

@@ -283,7 +283,7 @@ impl Simulation {
         let damping = Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta };
         let integrator = match config.integrator {
             IntegratorKind::ImplicitEuler => {
-                Integrator::Implicit(Box::new(BackwardEuler::with_solver(
+                let mut be = BackwardEuler::with_solver(
                     config.dt,
                     damping,
                     CgSettings {
@@ -291,7 +291,9 @@ impl Simulation {
                         max_iterations: 10 * model.dof_count().max(100),
                     },
                     config.solver,
-                )))
+                );
+                be.mass = config.mass;
+                Integrator::Implicit(Box::new(be))
             }
             IntegratorKind::Explicit => {
                 let limit = stable_dt(&model, &force_field, &fixed);

@@ -261,8 +261,8 @@ pub struct BackwardEuler {
     /// Steps and CG iterations since the last refactorisation (a running count: a server that
     /// never needs a refresh must not grow a list).
     since_refresh: Cycle,
-    /// The `(a, b)` of the direct solver's factor `a·M + b·K`.
-    factored_for: Option<(f64, f64)>,
+    /// The `(a, b)` and mass matrix of the direct solver's factor `a·M + b·K`.
+    factored_for: Option<(f64, f64, MassMatrix)>,
     /// The factor was built for the model before a topology change that kept every node: good
     /// as a preconditioner, but its element map is the old model's, so a refresh rebuilds it.
     pattern_stale: bool,
@@ -412,11 +412,13 @@ impl BackwardEuler {
                 report
             }
             LinearSolver::Cholesky => {
-                // The linear model's matrix only changes with the step, the damping or the
-                // topology (which resets the factor): one factorisation serves every step.
-                self.refresh |= ffr.formulation() == Formulation::Corotational
-                    || self.factored_for != Some((a, b));
-                self.factored_for = Some((a, b));
+                // The linear model's matrix only changes with the step, the damping, the mass
+                // matrix or the topology (which resets the factor): one factorisation serves
+                // every step.
+                let key = Some((a, b, self.mass));
+                self.refresh |=
+                    ffr.formulation() == Formulation::Corotational || self.factored_for != key;
+                self.factored_for = key;
                 self.ensure_factor(model, ffr, fixed, a, b);
                 let mut rr = rhs.clone();
                 fixed.project(&mut rr);

@@ -44,6 +44,19 @@ fn displacement(model: &HexModel, x: &[Vec3], n: usize) -> f64 {
     (0..3).map(|k| (x[n][k] - model.rest[n][k]).powi(2)).sum::<f64>().sqrt()
 }
 
+/// The largest node displacement of `x` from rest (m).
+fn largest_displacement(model: &HexModel, x: &[Vec3]) -> f64 {
+    (0..model.node_count()).map(|n| displacement(model, x, n)).fold(0.0, f64::max)
+}
+
+/// The largest component difference between two position lists (m).
+fn largest_difference(a: &[Vec3], b: &[Vec3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f64::max))
+        .fold(0.0, f64::max)
+}
+
 #[test]
 fn implicit_euler_settles_on_the_static_answer() {
     let (model, fixed, loads) = scene_b([7, 5, 4]);
@@ -127,8 +140,7 @@ fn an_inverted_corner_recovers_its_rest_shape() {
         be.step(&model, &mut ff, &fixed, &none, &mut state);
         assert!(state.x.iter().all(|p| p.iter().all(|c| c.is_finite())), "blew up");
     }
-    let worst =
-        (0..model.node_count()).map(|n| displacement(&model, &state.x, n)).fold(0.0, f64::max);
+    let worst = largest_displacement(&model, &state.x);
     assert!(worst < 1e-4, "after release the block is {worst:e} m from its rest shape");
 }
 
@@ -164,15 +176,9 @@ fn solvers_agree(formulation: Formulation) {
         (1..100).contains(&refreshes),
         "{formulation:?}: the preconditioner is refreshed only when needed ({refreshes})"
     );
-    let scale =
-        (0..model.node_count()).map(|n| displacement(&model, &jacobi.x, n)).fold(0.0, f64::max);
+    let scale = largest_displacement(&model, &jacobi.x);
     for other in [&pcg, &direct] {
-        let diff = jacobi
-            .x
-            .iter()
-            .zip(&other.x)
-            .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max))
-            .fold(0.0, f64::max);
+        let diff = largest_difference(&jacobi.x, &other.x);
         // Both solve each step's system to ~1e-12; 100 steps accumulate well below 1e-8 of the motion.
         assert!(diff <= 1e-8 * scale, "solvers disagree by {diff:e} m (motion {scale:e} m)");
     }
@@ -221,13 +227,8 @@ fn a_cut_that_keeps_every_node_keeps_the_preconditioner() {
     let mut ff_rebuilt = HexForceField::new(&cut, Formulation::Corotational);
     ff_rebuilt.update_rotations(&cut, &rebuilt_state.x);
     rebuilt.step(&cut, &mut ff_rebuilt, &fixed, &loads, &mut rebuilt_state);
-    let scale = (0..cut.node_count()).map(|n| displacement(&cut, &state.x, n)).fold(0.0, f64::max);
-    let diff = state
-        .x
-        .iter()
-        .zip(&rebuilt_state.x)
-        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max))
-        .fold(0.0, f64::max);
+    let scale = largest_displacement(&cut, &state.x);
+    let diff = largest_difference(&state.x, &rebuilt_state.x);
     // Both solve the same system to 1e-10; only the preconditioner (and warm start) differ.
     assert!(diff <= 1e-8 * scale, "kept and rebuilt factors disagree by {diff:e} m");
     println!(

@@ -132,8 +132,8 @@ impl Supernodes {
         let n = x.len();
         let Some(h) = &self.halves else {
             let mut all = Part { own: x, own_start: 0, sep_start: n };
-            self.sweep(Sweep::Forward, 0..count, l, &mut all, &mut []);
-            self.sweep(Sweep::Backward, 0..count, l, &mut all, &mut []);
+            self.sweep(Sweep::Forward(&mut []), 0..count, l, &mut all);
+            self.sweep(Sweep::Backward(&[]), 0..count, l, &mut all);
             return;
         };
         let parallel = self.values[count] >= PARALLEL_ENTRIES;
@@ -146,22 +146,21 @@ impl Supernodes {
         let mut buffer = vec![T::default(); separator.len()];
         crate::parallel::join_if(
             parallel,
-            || self.sweep(Sweep::Forward, 0..h.left, l, &mut a, separator),
-            || self.sweep(Sweep::Forward, h.left..h.right, l, &mut b, &mut buffer),
+            || self.sweep(Sweep::Forward(separator), 0..h.left, l, &mut a),
+            || self.sweep(Sweep::Forward(&mut buffer), h.left..h.right, l, &mut b),
         );
         for (x, b) in separator.iter_mut().zip(&buffer) {
             *x = *x + *b;
         }
         let mut top = Part { own: separator, own_start: h.right_end, sep_start: n };
-        self.sweep(Sweep::Forward, h.right..count, l, &mut top, &mut []);
-        self.sweep(Sweep::Backward, h.right..count, l, &mut top, &mut []);
-        let separator = &mut *top.own;
+        self.sweep(Sweep::Forward(&mut []), h.right..count, l, &mut top);
+        self.sweep(Sweep::Backward(&[]), h.right..count, l, &mut top);
         // The halves only read the separator on the way back.
-        let (mut sep_a, mut sep_b) = (separator.to_vec(), separator.to_vec());
+        let separator = &*top.own;
         crate::parallel::join_if(
             parallel,
-            || self.sweep(Sweep::Backward, 0..h.left, l, &mut a, &mut sep_a),
-            || self.sweep(Sweep::Backward, h.left..h.right, l, &mut b, &mut sep_b),
+            || self.sweep(Sweep::Backward(separator), 0..h.left, l, &mut a),
+            || self.sweep(Sweep::Backward(separator), h.left..h.right, l, &mut b),
         );
     }
 
@@ -169,13 +168,12 @@ impl Supernodes {
     /// AVX2 where the CPU has it: no contraction, so every path gives the same bits.
     fn sweep<T: Scalar>(
         &self,
-        sweep: Sweep,
+        sweep: Sweep<'_, T>,
         range: std::ops::Range<usize>,
         l: &[T],
         part: &mut Part<'_, T>,
-        sep: &mut [T],
     ) {
-        pulp::Arch::new().dispatch(SweepOp { supernodes: self, sweep, range, l, part, sep });
+        pulp::Arch::new().dispatch(SweepOp { supernodes: self, sweep, range, l, part });
     }
 
     // Inlined into pulp's feature-enabled entry point with everything below, or the loops would
@@ -184,22 +182,21 @@ impl Supernodes {
     #[inline(always)]
     fn sweep_here<T: Scalar>(
         &self,
-        sweep: Sweep,
+        sweep: Sweep<'_, T>,
         range: std::ops::Range<usize>,
         l: &[T],
         part: &mut Part<'_, T>,
-        sep: &mut [T],
     ) {
         let mut scratch = vec![T::default(); self.longest];
         match sweep {
-            Sweep::Forward => {
+            Sweep::Forward(sep) => {
                 for s in range {
                     self.forward(s, l, part, sep, &mut scratch);
                 }
             }
-            Sweep::Backward => {
+            Sweep::Backward(sep) => {
                 for s in range.rev() {
-                    self.backward(s, l, part, &*sep, &mut scratch);
+                    self.backward(s, l, part, sep, &mut scratch);
                 }
             }
         }
@@ -292,21 +289,20 @@ struct Supernode<'a, T> {
     block: &'a [T],
 }
 
-/// The two substitutions.
-#[derive(Clone, Copy)]
-enum Sweep {
-    Forward,
-    Backward,
+/// The two substitutions, each with the rows past `Part::sep_start`: the forward one subtracts
+/// its updates from them, the backward one reads them.
+enum Sweep<'s, T> {
+    Forward(&'s mut [T]),
+    Backward(&'s [T]),
 }
 
 /// [`Supernodes::sweep`] as a `pulp` operation.
 struct SweepOp<'a, 'b, T> {
     supernodes: &'a Supernodes,
-    sweep: Sweep,
+    sweep: Sweep<'a, T>,
     range: std::ops::Range<usize>,
     l: &'a [T],
     part: &'a mut Part<'b, T>,
-    sep: &'a mut [T],
 }
 
 impl<T: Scalar> pulp::WithSimd for SweepOp<'_, '_, T> {
@@ -316,7 +312,7 @@ impl<T: Scalar> pulp::WithSimd for SweepOp<'_, '_, T> {
     #[allow(clippy::inline_always)]
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        self.supernodes.sweep_here(self.sweep, self.range, self.l, self.part, self.sep);
+        self.supernodes.sweep_here(self.sweep, self.range, self.l, self.part);
     }
 }
 

@@ -35,7 +35,7 @@ pub struct CgReport {
 /// `a · b` summed in four fixed lanes (components `i mod 4` of the flattened vectors), combined
 /// as `(l0 + l1) + (l2 + l3)`: the compiler keeps the lanes in one vector register, and the order
 /// is fixed, so the result is deterministic.
-fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
+pub(crate) fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
     let (a, b) = (a.as_flattened(), b.as_flattened());
     let mut lanes = [0.0f64; 4];
     let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));

@@ -143,11 +143,18 @@ impl HexForceField {
     /// Element `e`'s vector `p` in its rotated frame, `Rᵀp`, as a 24-vector.
     #[inline]
     fn local_vector(&self, model: &HexModel, e: usize, p: &[Vec3]) -> [f64; 24] {
+        self.local_vector_of(model, e, |n| p[n])
+    }
+
+    /// [`HexForceField::local_vector`] of a vector given node by node.
+    #[allow(clippy::inline_always)] // measured: not inlined otherwise, and the 24-vector is copied
+    #[inline(always)]
+    fn local_vector_of(&self, model: &HexModel, e: usize, p: impl Fn(usize) -> Vec3) -> [f64; 24] {
         let el = &model.elements[e];
         let r = &self.matrices[e];
         let mut local = [0.0; 24];
         for (c, &n) in el.nodes.iter().enumerate() {
-            let v = p[n as usize];
+            let v = p(n as usize);
             let q =
                 if self.formulation == Formulation::Linear { v } else { mul_transpose_vec(r, &v) };
             local[3 * c..3 * c + 3].copy_from_slice(&q);
@@ -165,9 +172,7 @@ impl HexForceField {
         })
     }
 
-    /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product. Neighbouring
-    /// elements with the same stiffness (every full cell of a material) are multiplied as a
-    /// pair, loading the matrix once; the result does not depend on the pairing.
+    /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product.
     fn add_products(
         &self,
         model: &HexModel,
@@ -177,26 +182,68 @@ impl HexForceField {
     ) {
         with_scratch(model.elements.len(), |per_element| {
             fill_element_pairs(per_element, |e, slots| {
-                let k = &model.elements[e].stiffness;
-                if let [first, second] = slots
-                    && Arc::ptr_eq(k, &model.elements[e + 1].stiffness)
-                {
-                    let (g, h) = symmetric_product_pair(k, &local(e), &local(e + 1));
-                    *first = self.global_corners(e, scale, &g);
-                    *second = self.global_corners(e + 1, scale, &h);
-                } else {
-                    for (i, slot) in slots.iter_mut().enumerate() {
-                        let el = &model.elements[e + i].stiffness;
-                        *slot = self.global_corners(
-                            e + i,
-                            scale,
-                            &symmetric_product(el, &local(e + i)),
-                        );
-                    }
-                }
+                self.products_from(model, scale, &local, e, slots);
             });
             scatter(model, per_element, out);
         });
+    }
+
+    /// `slots[i] = scale · R Kₑ local(e)` per corner for elements `e = first + i`. Neighbouring
+    /// elements with the same stiffness (every full cell of a material) are multiplied as a pair,
+    /// loading the matrix once; the result does not depend on the pairing.
+    #[allow(clippy::inline_always)] // measured: see `local_vector_of`
+    #[inline(always)]
+    fn products_from(
+        &self,
+        model: &HexModel,
+        scale: f64,
+        local: &impl Fn(usize) -> [f64; 24],
+        first: usize,
+        slots: &mut [[Vec3; 8]],
+    ) {
+        for (k, pair) in slots.chunks_mut(2).enumerate() {
+            let e = first + 2 * k;
+            let shared = &model.elements[e].stiffness;
+            if let [a, b] = pair
+                && Arc::ptr_eq(shared, &model.elements[e + 1].stiffness)
+            {
+                let (g, h) = symmetric_product_pair(shared, &local(e), &local(e + 1));
+                *a = self.global_corners(e, scale, &g);
+                *b = self.global_corners(e + 1, scale, &h);
+            } else {
+                for (i, slot) in pair.iter_mut().enumerate() {
+                    let k = &model.elements[e + i].stiffness;
+                    *slot = self.global_corners(e + i, scale, &symmetric_product(k, &local(e + i)));
+                }
+            }
+        }
+    }
+
+    /// `out += scale · R Kₑ Rᵀ p` for the elements in `elements` (starting at an even index), in
+    /// element order: one part of a stiffness product whose parts
+    /// are summed elsewhere.
+    pub(crate) fn add_stiffness_products_of(
+        &self,
+        model: &HexModel,
+        scale: f64,
+        p: &[Vec3],
+        elements: std::ops::Range<usize>,
+        out: &mut [Vec3],
+    ) {
+        let local = |e| self.local_vector(model, e, p);
+        let mut slots = [[[0.0; 3]; 8]; 2];
+        for first in elements.clone().step_by(2) {
+            let len = (elements.end - first).min(2);
+            self.products_from(model, scale, &local, first, &mut slots[..len]);
+            for (i, fs) in slots[..len].iter().enumerate() {
+                for (c, &n) in model.elements[first + i].nodes.iter().enumerate() {
+                    let o = &mut out[n as usize];
+                    o[0] += fs[c][0];
+                    o[1] += fs[c][1];
+                    o[2] += fs[c][2];
+                }
+            }
+        }
     }
 
     /// `f += elastic forces at positions x` (call [`HexForceField::update_rotations`] first).

@@ -14,10 +14,12 @@ pub mod constraints;
 pub mod hex_force;
 pub mod integrate;
 mod kernel;
+mod lockstep_cg;
 pub mod model;
 pub mod ordering;
 mod parallel;
 mod supernodal;
+mod team;
 pub mod tet;
 
 pub use constraints::FixedNodes;

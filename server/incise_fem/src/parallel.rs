@@ -18,7 +18,7 @@ pub fn set_thread_override(threads: Option<usize>) {
 }
 
 /// Threads to use: the override, else `INCISE_THREADS`, else up to 2.
-fn threads() -> usize {
+pub(crate) fn threads() -> usize {
     // Read once: `available_parallelism` opens cgroup files on every call (a third of a small
     // scene's step time when it was asked per element loop).
     static AUTOMATIC: OnceLock<usize> = OnceLock::new();
@@ -37,16 +37,24 @@ fn threads() -> usize {
 }
 
 /// The worker threads, started once: spawning threads per element loop cost more than a small
-/// scene's whole loop (stack mappings and TLB shootdowns).
-fn pool() -> &'static rayon::ThreadPool {
+/// scene's whole loop (stack mappings and TLB shootdowns). The calling thread does one share of
+/// every loop, so the pool holds one thread fewer than a loop uses: an idle extra worker woken by
+/// each loop competed for the two cores with the threads doing the work.
+pub(crate) fn pool() -> &'static rayon::ThreadPool {
     static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
     POOL.get_or_init(|| {
         rayon::ThreadPoolBuilder::new()
-            .num_threads(threads())
+            .num_threads(threads().saturating_sub(1).max(1))
             .thread_name(|i| format!("incise-fem-{i}"))
             .build()
             .expect("the element-loop threads start")
     })
+}
+
+/// Whether the calling thread is one of the element-loop threads (a team started there could
+/// wait on a job queued behind itself).
+pub(crate) fn in_pool() -> bool {
+    pool().current_thread_index().is_some()
 }
 
 /// `out[i] = f(i)` for every index, on up to [`threads`] threads (contiguous chunks, one per
@@ -64,11 +72,18 @@ pub(crate) fn fill_elements<T: Send>(out: &mut [T], f: impl Fn(usize) -> T + Syn
         return;
     }
     let chunk = n.div_ceil(t);
-    let run = &run;
-    pool().scope(|s| {
-        for (i, part) in out.chunks_mut(chunk).enumerate() {
-            s.spawn(move |_| run(i * chunk, part));
+    on_chunks(out, chunk, &run);
+}
+
+/// `run(start, chunk)` for consecutive chunks of `out`, the first on the calling thread and the
+/// others on the pool.
+fn on_chunks<T: Send>(out: &mut [T], chunk: usize, run: &(impl Fn(usize, &mut [T]) + Sync)) {
+    let (first, rest) = out.split_at_mut(chunk.min(out.len()));
+    pool().in_place_scope(|s| {
+        for (i, part) in rest.chunks_mut(chunk).enumerate() {
+            s.spawn(move |_| run((i + 1) * chunk, part));
         }
+        run(0, first);
     });
 }
 
@@ -88,12 +103,7 @@ pub(crate) fn fill_element_pairs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut 
         return;
     }
     let chunk = n.div_ceil(t).next_multiple_of(2);
-    let run = &run;
-    pool().scope(|s| {
-        for (i, part) in out.chunks_mut(chunk).enumerate() {
-            s.spawn(move |_| run(i * chunk, part));
-        }
-    });
+    on_chunks(out, chunk, &run);
 }
 
 /// `(0..n).map(f)` computed like [`fill_elements`], results in index order.
@@ -113,5 +123,13 @@ pub(crate) fn join_if<A: Send, B: Send>(
     a: impl FnOnce() -> A + Send,
     b: impl FnOnce() -> B + Send,
 ) -> (A, B) {
-    if parallel && threads() > 1 { pool().join(a, b) } else { (a(), b()) }
+    if !parallel || threads() == 1 {
+        return (a(), b());
+    }
+    let mut second = None;
+    let first = pool().in_place_scope(|s| {
+        s.spawn(|_| second = Some(b()));
+        a()
+    });
+    (first, second.expect("the scope waited for its job"))
 }

@@ -6,7 +6,7 @@
 const PARALLEL_MIN: usize = 1_500;
 
 use std::sync::OnceLock;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// 0 = automatic; otherwise the thread count every element loop uses.
 static OVERRIDE: AtomicUsize = AtomicUsize::new(0);
@@ -51,6 +51,43 @@ pub(crate) fn pool() -> &'static rayon::ThreadPool {
     })
 }
 
+/// Jobs handed to the pool and not started yet.
+static WAITING: AtomicUsize = AtomicUsize::new(0);
+
+/// Whether a worker is lingering (see [`spawn`]).
+static LINGERING: AtomicBool = AtomicBool::new(false);
+
+/// How long a worker stays awake after its job for the next one. A sleeping worker takes tens
+/// of microseconds to wake here (a virtual machine), as long as a whole CG solve on a small
+/// scene; a step's loops and solves follow each other closer than this. (OpenMP runtimes spin
+/// for 200 ms by default.)
+const LINGER: std::time::Duration = std::time::Duration::from_micros(500);
+
+/// Hands `job` to the pool within scope `s`. After it the worker stays awake for [`LINGER`] (a
+/// separate job that spins until more work is handed over), so the next loop's job starts at
+/// once instead of waiting for a wake-up.
+pub(crate) fn spawn<'scope>(s: &rayon::Scope<'scope>, job: impl FnOnce() + Send + 'scope) {
+    WAITING.fetch_add(1, Ordering::AcqRel);
+    s.spawn(move |_| {
+        WAITING.fetch_sub(1, Ordering::AcqRel);
+        job();
+        if !LINGERING.swap(true, Ordering::AcqRel) {
+            pool().spawn(linger);
+        }
+    });
+}
+
+/// Spins until a job is handed to the pool or [`LINGER`] has passed.
+fn linger() {
+    let start = std::time::Instant::now();
+    while WAITING.load(Ordering::Acquire) == 0 && start.elapsed() < LINGER {
+        for _ in 0..32 {
+            std::hint::spin_loop();
+        }
+    }
+    LINGERING.store(false, Ordering::Release);
+}
+
 /// Whether the calling thread is one of the element-loop threads (a team started there could
 /// wait on a job queued behind itself).
 pub(crate) fn in_pool() -> bool {
@@ -81,7 +118,7 @@ fn on_chunks<T: Send>(out: &mut [T], chunk: usize, run: &(impl Fn(usize, &mut [T
     let (first, rest) = out.split_at_mut(chunk.min(out.len()));
     pool().in_place_scope(|s| {
         for (i, part) in rest.chunks_mut(chunk).enumerate() {
-            s.spawn(move |_| run((i + 1) * chunk, part));
+            spawn(s, move || run((i + 1) * chunk, part));
         }
         run(0, first);
     });
@@ -128,7 +165,7 @@ pub(crate) fn join_if<A: Send, B: Send>(
     }
     let mut second = None;
     let first = pool().in_place_scope(|s| {
-        s.spawn(|_| second = Some(b()));
+        spawn(s, || second = Some(b()));
         a()
     });
     (first, second.expect("the scope waited for its job"))

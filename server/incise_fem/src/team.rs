@@ -130,7 +130,7 @@ pub(crate) fn run<R: Send>(parallel: bool, body: impl Fn(&Member) -> R + Sync) -
     }
     let (body, member) = (&body, &member);
     crate::parallel::pool().in_place_scope(|s| {
-        s.spawn(move |_| {
+        crate::parallel::spawn(s, move || {
             let _poison = PoisonOnPanic(member(1).team);
             body(&member(1));
         });

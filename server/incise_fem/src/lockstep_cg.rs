@@ -229,3 +229,80 @@ fn project(fixed: &FixedNodes, start: usize, v: &mut [Vec3]) {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cg::{block_jacobi, invert_block};
+    use crate::hex_force::Formulation;
+    use incise_grid::procedural::from_fn;
+    use incise_grid::{BranchedGrid, Material, MaterialTable};
+
+    /// On a twisted block (every element rotated differently) the lockstep solve and the serial
+    /// [`crate::cg::solve`] reach the same solution, with the same iteration count: the same
+    /// iteration, only its sums grouped by part. Tolerance: both stop at ‖r‖ ≤ 1e-10 ‖b‖, so
+    /// their solutions differ by about that times the condition number (< 1e3 here).
+    #[test]
+    fn agrees_with_the_serial_solver() {
+        let cells = [9, 7, 5];
+        // A notch (an empty column) makes some elements partly filled, with their own matrices.
+        let v = from_fn(cells, [0.01; 3], |x, y, _| u16::from((x - 4.5).abs() > 1.0 || y > 3.0));
+        let table = MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0));
+        let model = HexModel::from_grid(&BranchedGrid::build(&v, &table, 0).unwrap());
+        assert!(model.elements.len() >= TEAM_MIN);
+        let fixed = FixedNodes::plane(&model.rest, 2, 0.0, 1e-9);
+        let x: Vec<Vec3> = model
+            .rest
+            .iter()
+            .map(|p| {
+                let t = 3.0 * p[2];
+                [p[0] * t.cos() - p[1] * t.sin(), p[0] * t.sin() + p[1] * t.cos(), p[2] * 1.1]
+            })
+            .collect();
+        let mut ff = HexForceField::new(&model, Formulation::Corotational);
+        ff.update_rotations(&model, &x);
+        let (a, b) = (1.002, 1.1e-5);
+        let pre: Vec<Mat3> = ff
+            .diagonal_blocks(&model)
+            .iter()
+            .zip(&model.lumped_mass)
+            .map(|(k, &m)| {
+                let mut blk: Mat3 = std::array::from_fn(|i| std::array::from_fn(|j| b * k[i][j]));
+                (0..3).for_each(|i| blk[i][i] += a * m);
+                invert_block(&blk)
+            })
+            .collect();
+        let rhs: Vec<Vec3> = (0..model.node_count())
+            .map(|i| {
+                let s = i as f64;
+                [(0.3 * s).sin(), (0.7 * s).cos(), (1.1 * s).sin()].map(|c| c * 1e-4)
+            })
+            .collect();
+        let settings = CgSettings { tolerance: 1e-10, max_iterations: 1000 };
+        let apply = |p: &[Vec3], out: &mut [Vec3]| {
+            for (i, o) in out.iter_mut().enumerate() {
+                let m = a * model.lumped_mass[i];
+                *o = p[i].map(|c| m * c);
+            }
+            ff.add_stiffness_times(&model, b, p, out);
+        };
+        let mut serial = vec![[0.0; 3]; model.node_count()];
+        let rs = crate::cg::solve(apply, block_jacobi(&pre), &fixed, &rhs, &mut serial, settings);
+        let sys = System { model: &model, ff: &ff, fixed: &fixed, a, b, pre: &pre };
+        let mut lockstep = vec![[0.0; 3]; model.node_count()];
+        let rl = solve(&sys, &rhs, &mut lockstep, settings);
+        assert!(rs.converged && rl.converged, "{rs:?} {rl:?}");
+        assert!(rs.iterations.abs_diff(rl.iterations) <= 1, "{rs:?} {rl:?}");
+        let norm = |v: &[Vec3]| v.iter().flatten().map(|c| c * c).sum::<f64>().sqrt();
+        let diff: Vec<Vec3> = serial
+            .iter()
+            .zip(&lockstep)
+            .map(|(s, l)| std::array::from_fn(|k| s[k] - l[k]))
+            .collect();
+        let rel = norm(&diff) / norm(&serial);
+        assert!(rel < 1e-7, "relative difference {rel:e}");
+        for n in (0..model.node_count()).filter(|&n| fixed.is_fixed(n)) {
+            assert_eq!(lockstep[n], [0.0; 3]);
+        }
+    }
+}

@@ -57,13 +57,19 @@ static WAITING: AtomicUsize = AtomicUsize::new(0);
 /// Whether a worker is lingering (see [`spawn`]).
 static LINGERING: AtomicBool = AtomicBool::new(false);
 
-/// How long a worker stays awake after its job for the next one. A sleeping worker takes tens
-/// of microseconds to wake here (a virtual machine), as long as a whole CG solve on a small
-/// scene; a step's loops and solves follow each other closer than this. (OpenMP runtimes spin
-/// for 200 ms by default.)
-const LINGER: std::time::Duration = std::time::Duration::from_micros(500);
+/// How long a worker stays awake after its job for the next one: `INCISE_LINGER_US`
+/// microseconds, 500 by default (0: sleep at once). A sleeping worker takes tens of microseconds
+/// to wake here (a virtual machine), as long as a whole CG solve on a small scene; a step's loops
+/// and solves follow each other closer than this. (OpenMP runtimes spin for 200 ms by default.)
+fn linger_time() -> std::time::Duration {
+    static LINGER: OnceLock<std::time::Duration> = OnceLock::new();
+    *LINGER.get_or_init(|| {
+        let micros = std::env::var("INCISE_LINGER_US").ok().and_then(|s| s.parse().ok());
+        std::time::Duration::from_micros(micros.unwrap_or(500))
+    })
+}
 
-/// Hands `job` to the pool within scope `s`. After it the worker stays awake for [`LINGER`] (a
+/// Hands `job` to the pool within scope `s`. After it the worker stays awake (see [`linger_time`], a
 /// separate job that spins until more work is handed over), so the next loop's job starts at
 /// once instead of waiting for a wake-up.
 pub(crate) fn spawn<'scope>(s: &rayon::Scope<'scope>, job: impl FnOnce() + Send + 'scope) {
@@ -71,16 +77,17 @@ pub(crate) fn spawn<'scope>(s: &rayon::Scope<'scope>, job: impl FnOnce() + Send 
     s.spawn(move |_| {
         WAITING.fetch_sub(1, Ordering::AcqRel);
         job();
-        if !LINGERING.swap(true, Ordering::AcqRel) {
+        if !linger_time().is_zero() && !LINGERING.swap(true, Ordering::AcqRel) {
             pool().spawn(linger);
         }
     });
 }
 
-/// Spins until a job is handed to the pool or [`LINGER`] has passed.
+/// Spins until a job is handed to the pool or [`linger_time`] has passed.
 fn linger() {
     let start = std::time::Instant::now();
-    while WAITING.load(Ordering::Acquire) == 0 && start.elapsed() < LINGER {
+    let limit = linger_time();
+    while WAITING.load(Ordering::Acquire) == 0 && start.elapsed() < limit {
         for _ in 0..32 {
             std::hint::spin_loop();
         }

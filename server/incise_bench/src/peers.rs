@@ -1,10 +1,13 @@
-//! Peers measured on this machine: the table `../shared/peers/bench_mujoco.py` prints (MuJoCo's
-//! flex on scene B), read so that `speed-error --peers FILE` can put them on the speed-vs-error
-//! plot at their measured error and compare them with our rows at equal error, in one job.
+//! Peers measured on this machine: the tables `../shared/peers/bench_mujoco.py` (MuJoCo's flex on
+//! scene B) and `deploy/peers/bench_newton.py` (Newton's semi-implicit soft mesh, same layout)
+//! print, read so that `speed-error --peers FILE` can put them on the speed-vs-error plot at their
+//! measured error and compare them with our rows at equal error, in one job.
 //!
-//! A row of that table reads
+//! A table starts with a line `# MuJoCo 4.0.0 …` or `# Newton 1.8.0 …` (name and version of the
+//! rows after it). A row reads
 //! `discrete   S2   3168   756   1889   463.0   462.3   472.0  stable   0.0123  stable   0.0121`:
-//! integrator (`Euler`, `discrete`, or `disc@10ms` for the implicit one timed at 10 ms), scene,
+//! integrator (MuJoCo's `Euler`, `discrete`, or `disc@10ms` for the implicit one timed at 10 ms;
+//! Newton's `semi-impl`), scene,
 //! tetrahedra, nodes, steps per run, median/min/max steps/s at the row's dt, then for dt = 1 ms
 //! and 10 ms a verdict (`stable`, or words such as `blow-up (BADQACC reset)`) and the pulled
 //! corner's displacement `|u_c|` (m) after 2 s, `nan` when it blew up.
@@ -27,41 +30,56 @@ pub struct PeerPoint {
     pub displacement: Option<f64>,
 }
 
-/// Reads a `bench_mujoco.py` table from `path`.
+/// Reads the peers' tables in `path`.
 ///
 /// # Errors
-/// If the file cannot be read or holds no row of the table.
-pub fn read_mujoco(path: &Path) -> anyhow::Result<Vec<PeerPoint>> {
+/// If the file cannot be read or holds no row of a table.
+pub fn read_peers(path: &Path) -> anyhow::Result<Vec<PeerPoint>> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("reading the peers' table {}", path.display()))?;
-    parse_mujoco(&text).with_context(|| format!("in {}", path.display()))
+    parse_peers(&text).with_context(|| format!("in {}", path.display()))
 }
 
-/// Parses a `bench_mujoco.py` table. Lines that are not rows (headers, comments, the cantilever
-/// lines) are skipped; a line that starts like a row but does not parse is an error naming it.
+/// The row names each peer's table uses.
+const ROWS: [(&str, &[&str]); 2] =
+    [("MuJoCo", &["Euler", "discrete", "disc@10ms"]), ("Newton", &["semi-impl"])];
+
+/// Parses `bench_mujoco.py` and `bench_newton.py` tables (several may follow each other). Lines
+/// that are not rows (headers, comments, the cantilever lines) are skipped; a line that starts
+/// like a row but does not parse is an error naming it.
 ///
 /// # Errors
 /// A malformed row (with its line number), or no row at all.
-pub fn parse_mujoco(text: &str) -> anyhow::Result<Vec<PeerPoint>> {
-    let version = text
-        .lines()
-        .find_map(|l| l.strip_prefix("# MuJoCo ").and_then(|r| r.split_whitespace().next()))
-        .map(str::to_owned);
+pub fn parse_peers(text: &str) -> anyhow::Result<Vec<PeerPoint>> {
+    // (peer, version) of the table the rows belong to; MuJoCo's before any header (older files).
+    let mut table: (&str, Option<&str>) = ("MuJoCo", None);
     let mut points = Vec::new();
     for (number, line) in text.lines().enumerate() {
-        let tokens: Vec<&str> = line.split_whitespace().collect();
-        let Some(&integrator) = tokens.first() else { continue };
-        if !matches!(integrator, "Euler" | "discrete" | "disc@10ms") {
+        if let Some(header) = line.strip_prefix("# ") {
+            let mut words = header.split_whitespace();
+            let first = words.next();
+            if let Some((name, _)) = ROWS.iter().find(|(name, _)| first == Some(*name)) {
+                table = (name, words.next());
+            }
             continue;
         }
-        let point = parse_row(integrator, &tokens, version.as_deref())
-            .with_context(|| format!("line {}: {line:?}", number + 1))?;
+        let tokens: Vec<&str> = line.split_whitespace().collect();
+        let Some(&integrator) = tokens.first() else { continue };
+        let Some((peer, _)) = ROWS.iter().find(|(_, rows)| rows.contains(&integrator)) else {
+            continue;
+        };
+        let point = if *peer == table.0 {
+            parse_row(integrator, &tokens, peer, table.1)
+        } else {
+            Err(anyhow::anyhow!("a {peer} row in the {} table", table.0))
+        }
+        .with_context(|| format!("line {}: {line:?}", number + 1))?;
         points.push(point);
     }
     if points.is_empty() {
         bail!(
-            "no rows of bench_mujoco.py's table (lines starting `Euler`, `discrete` or \
-             `disc@10ms`)"
+            "no rows of bench_mujoco.py's or bench_newton.py's table (lines starting `Euler`, \
+             `discrete`, `disc@10ms` or `semi-impl`)"
         );
     }
     Ok(points)
@@ -70,6 +88,7 @@ pub fn parse_mujoco(text: &str) -> anyhow::Result<Vec<PeerPoint>> {
 fn parse_row(
     integrator: &str,
     tokens: &[&str],
+    peer: &str,
     version: Option<&str>,
 ) -> anyhow::Result<PeerPoint> {
     if tokens.len() < 10 {
@@ -108,10 +127,11 @@ fn parse_row(
     let displacement = (verdict == "stable" && u.is_finite()).then_some(*u);
     let name = match integrator {
         "Euler" => "explicit (Euler)",
+        "semi-impl" => "semi-implicit",
         _ => "implicit (discrete)",
     };
     Ok(PeerPoint {
-        peer: format!("MuJoCo {}{name}", version.map_or(String::new(), |v| format!("{v} "))),
+        peer: format!("{peer} {}{name}", version.map_or(String::new(), |v| format!("{v} "))),
         scene: scene.to_owned(),
         dt: if integrator == "disc@10ms" { 1e-2 } else { 1e-3 },
         steps_per_s,
@@ -133,12 +153,16 @@ Euler      S3     23760   4784      1085     275.1     274.4     278.2  blow-up 
 discrete   S2      3168    756      1889     463.0     462.3     472.0  stable                      0.0123  stable                      0.0121
 disc@10ms  S2      3168    756      1131     430.3     363.0     434.9  stable                      0.0123  stable                      0.0121
 cantilever (discrete, dt=1ms, 480 tets, grid (20, 2, 2)): tip deflection 7.4 mm
+# Newton 1.8.0 (Warp 1.19.0, CPU) soft mesh, semi-implicit Euler; loadavg before 1.41, after 1.32
+(rows time dt = 1 ms; stability columns are per scene)
+integrator scene   tets  nodes steps/run    median       min       max  dt=1ms                     |u_c|@2s  dt=10ms                    |u_c|@2s
+semi-impl  S3     23760   4784      1939     961.6     954.7     968.9  stable                       0.0144  blow-up (|u|max=994.48 m)  994.4776
 ";
 
     #[test]
     fn the_table_is_read_with_each_rows_own_dt_and_verdict() {
-        let points = parse_mujoco(TABLE).unwrap();
-        assert_eq!(points.len(), 4);
+        let points = parse_peers(TABLE).unwrap();
+        assert_eq!(points.len(), 5);
         assert_eq!(points[0].peer, "MuJoCo 4.0.0 explicit (Euler)");
         assert_eq!((points[0].scene.as_str(), points[0].dt), ("B1", 1e-3));
         assert_eq!(points[0].displacement, Some(0.0103));
@@ -148,24 +172,35 @@ cantilever (discrete, dt=1ms, 480 tets, grid (20, 2, 2)): tip deflection 7.4 mm
             (points[3].dt, points[3].steps_per_s, points[3].displacement),
             (1e-2, 430.3, Some(0.0121))
         );
+        assert_eq!(points[4].peer, "Newton 1.8.0 semi-implicit");
+        assert_eq!(
+            (points[4].scene.as_str(), points[4].dt, points[4].steps_per_s),
+            ("B3", 1e-3, 961.6)
+        );
+        assert_eq!(points[4].displacement, Some(0.0144));
     }
 
     #[test]
     fn bad_tables_say_what_and_where() {
-        let e = format!("{:#}", parse_mujoco("hello\n").unwrap_err());
+        let e = format!("{:#}", parse_peers("hello\n").unwrap_err());
         assert!(e.contains("no rows"), "{e}");
         let e = format!(
             "{:#}",
-            parse_mujoco("discrete S9 1 2 3 4 5 6 stable 0.1 stable 0.1\n").unwrap_err()
+            parse_peers("discrete S9 1 2 3 4 5 6 stable 0.1 stable 0.1\n").unwrap_err()
         );
         assert!(e.contains("line 1") && e.contains("S9"), "{e}");
         let e = format!(
             "{:#}",
-            parse_mujoco("discrete S1 1 2 3 fast 5 6 stable 0.1 stable 0.1\n").unwrap_err()
+            parse_peers("discrete S1 1 2 3 fast 5 6 stable 0.1 stable 0.1\n").unwrap_err()
         );
         assert!(e.contains("median") && e.contains("fast"), "{e}");
-        let e = format!("{:#}", parse_mujoco("Euler S1 1 2 3 4 5 6 stable 0.1\n").unwrap_err());
+        let e = format!("{:#}", parse_peers("Euler S1 1 2 3 4 5 6 stable 0.1\n").unwrap_err());
         assert!(e.contains("two verdicts"), "{e}");
+        let e = format!(
+            "{:#}",
+            parse_peers("semi-impl S1 1 2 3 4 5 6 stable 0.1 stable 0.1\n").unwrap_err()
+        );
+        assert!(e.contains("line 1") && e.contains("Newton row in the MuJoCo table"), "{e}");
     }
 
     proptest! {
@@ -176,13 +211,13 @@ cantilever (discrete, dt=1ms, 480 tets, grid (20, 2, 2)): tip deflection 7.4 mm
             let at = flip % bytes.len();
             bytes[at] = byte;
             bytes.truncate(cut % (bytes.len() + 1));
-            let _ = parse_mujoco(&String::from_utf8_lossy(&bytes));
+            let _ = parse_peers(&String::from_utf8_lossy(&bytes));
         }
 
         /// Random lines that start like rows never panic either.
         #[test]
         fn random_rows_never_panic(words in proptest::collection::vec("[a-zA-Z0-9.@()-]{0,8}", 0..16)) {
-            let _ = parse_mujoco(&format!("discrete {}\n", words.join(" ")));
+            let _ = parse_peers(&format!("discrete {}\n", words.join(" ")));
         }
     }
 }

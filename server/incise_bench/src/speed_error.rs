@@ -55,9 +55,10 @@ pub struct SpeedErrorArgs {
     /// The table `../shared/peers/bench_mujoco.py S1 S2 S3 nocant` printed, saved to a file (run it
     /// right before or after, on the same machine): its rows get their error against the same
     /// reference, go on the plot, and are compared with our fastest stable row at equal or lower
-    /// error and the same dt.
+    /// error and the same dt. `deploy/peers/bench_newton.py`'s table (Newton's semi-implicit
+    /// integrator) is read the same way; give `--peers` once per file, or one file holding both.
     #[arg(long, value_name = "PATH")]
-    peers: Option<PathBuf>,
+    peers: Vec<PathBuf>,
 }
 
 /// A peer's point against ours at equal error.
@@ -354,7 +355,15 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     }
     let bar = crate::progress::stages(cases.len() as u64);
     // Read before the long measurement, so a bad file fails at once.
-    let peer_points = args.peers.as_deref().map(crate::peers::read_mujoco).transpose()?;
+    let peer_points: Option<Vec<crate::peers::PeerPoint>> = if args.peers.is_empty() {
+        None
+    } else {
+        let mut points = Vec::new();
+        for path in &args.peers {
+            points.extend(crate::peers::read_peers(path)?);
+        }
+        Some(points)
+    };
     let mut rows = Vec::new();
     let mut explicit_limits = Vec::new();
     for case in &cases {
@@ -491,12 +500,12 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 .iter()
                 .map(|r| (r.model, r.scene.as_str(), r.steps_per_s, r.error, r.stable))
                 .collect::<Vec<_>>(),
-            args.peers.is_some().then_some(peers.as_slice()),
+            (!args.peers.is_empty()).then_some(peers.as_slice()),
         )
         .with_context(|| format!("drawing {}", path.display()))?;
     }
     if args.json {
-        if args.peers.is_some() {
+        if !args.peers.is_empty() {
             println!("{}", serde_json::json!({ "rows": rows, "peers": comparisons }));
         } else {
             println!("{}", serde_json::json!({ "rows": rows }));

@@ -505,10 +505,10 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         .with_context(|| format!("drawing {}", path.display()))?;
     }
     if args.json {
-        if !args.peers.is_empty() {
-            println!("{}", serde_json::json!({ "rows": rows, "peers": comparisons }));
-        } else {
+        if args.peers.is_empty() {
             println!("{}", serde_json::json!({ "rows": rows }));
+        } else {
+            println!("{}", serde_json::json!({ "rows": rows, "peers": comparisons }));
         }
     }
     Ok(())

@@ -230,27 +230,56 @@ pub enum LinearSolver {
 /// run and frames stay bit-identical.
 pub const REFRESH_COST: usize = 30;
 
-/// Velocity changes kept for the starting guess: four, a cubic through them.
-const HISTORY: usize = 4;
+/// The highest order of the starting guess's extrapolation (cubic).
+const MAX_ORDER: usize = 3;
 
-/// The polynomial through `history` (the most recent first, one step apart) evaluated one step
-/// ahead: constant, linear, quadratic or cubic by how many there are (zero when none). Measured
-/// at 1 ms, from rest, CG iterations per step on B2 / B3: 6.5 / 11.6 linear, 3.9 / 7.0 quadratic,
-/// 3.1 / 5.7 cubic. A load that jumps costs the cubic a few more iterations for three steps;
-/// the tolerance, and so the answer, is the same.
-fn extrapolate(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
-    const WEIGHTS: [&[f64]; HISTORY] =
-        [&[1.0], &[2.0, -1.0], &[3.0, -3.0, 1.0], &[4.0, -6.0, 4.0, -1.0]];
-    let Some(weights) = history.len().checked_sub(1).map(|k| WEIGHTS[k]) else {
+/// Velocity changes kept: the cubic's four, and one more to judge the cubic's last prediction.
+const HISTORY: usize = MAX_ORDER + 2;
+
+/// Weights of the polynomial of order `k` through the `k + 1` most recent values (one step
+/// apart), evaluated one step ahead.
+const WEIGHTS: [&[f64]; MAX_ORDER + 1] =
+    [&[1.0], &[2.0, -1.0], &[3.0, -3.0, 1.0], &[4.0, -6.0, 4.0, -1.0]];
+
+/// The polynomial of order `order` through `values` (the most recent first) one step ahead, at
+/// entry `i`.
+fn predict(values: &[Vec<Vec3>], order: usize, i: usize) -> Vec3 {
+    std::array::from_fn(|k| {
+        WEIGHTS[order].iter().zip(values).fold(0.0, |acc, (w, d)| acc + w * d[i][k])
+    })
+}
+
+/// CG's starting guess from the last steps' velocity changes (`history`, the most recent first):
+/// the polynomial of the order that would have predicted the most recent one best from those
+/// before it, extrapolated one step (zero with no history; linear before there is a choice).
+/// A smooth motion's acceleration changes slowly, and at 1 ms from rest the cubic wins: CG
+/// iterations per step on B2 / B3 fall from 6.5 / 11.6 (linear) to 3.1 / 5.7. At 10 ms, where the
+/// motion is not smooth on the step's scale, a lower order wins. The choice uses vector sums
+/// only (no operator product), is made the same way every run, and changes where CG starts, not
+/// where it stops.
+fn starting_guess(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
+    let Some((latest, older)) = history.split_first() else {
         return vec![[0.0; 3]; n];
     };
-    (0..n)
-        .map(|i| {
-            std::array::from_fn(|k| {
-                weights.iter().zip(history).fold(0.0, |acc, (w, d)| acc + w * d[i][k])
+    let judged = older.len().min(MAX_ORDER + 1);
+    let order = if judged < 2 {
+        usize::from(judged == 1)
+    } else {
+        (0..judged)
+            .map(|order| {
+                let miss: f64 = (0..n)
+                    .map(|i| {
+                        let p = predict(older, order, i);
+                        (0..3).map(|k| (latest[i][k] - p[k]).powi(2)).sum::<f64>()
+                    })
+                    .sum();
+                (order, miss)
             })
-        })
-        .collect()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(0, |(order, _)| order)
+    };
+    let order = order.min(history.len() - 1);
+    (0..n).map(|i| predict(history, order, i)).collect()
 }
 
 /// Which mass matrix an implicit step uses.
@@ -279,7 +308,7 @@ pub struct BackwardEuler {
     /// the consistent mass's rows sum to the lumped one).
     pub mass: MassMatrix,
     /// The last steps' velocity changes, the most recent first (at most [`HISTORY`]): CG's
-    /// starting guess is their extrapolation.
+    /// starting guess is their extrapolation ([`starting_guess`]).
     history: Vec<Vec<Vec3>>,
     factor: Option<SystemFactor>,
     refresh: bool,
@@ -400,7 +429,7 @@ impl BackwardEuler {
         // acceleration changes slowly): on B3 at 1 ms the cubic saves half the iterations, to the
         // same tolerance.
         self.history.retain(|d| d.len() == n);
-        let mut dv = extrapolate(&self.history, n);
+        let mut dv = starting_guess(&self.history, n);
         let ffr = &*ff;
         let consistent = self.mass == MassMatrix::Consistent;
         let apply = |p: &[Vec3], out: &mut [Vec3]| {
@@ -626,5 +655,49 @@ mod renewal_tests {
             })
             .unwrap();
         assert_eq!(first, 9);
+    }
+}
+
+#[cfg(test)]
+mod guess_tests {
+    use super::*;
+
+    /// Histories (most recent first) of a two-node field sampled at steps `t = 0, -1, -2, …`.
+    fn history(f: impl Fn(f64) -> f64, len: usize) -> Vec<Vec<Vec3>> {
+        (0..len)
+            .map(|j| {
+                let t = -(j as f64);
+                vec![[f(t), 2.0 * f(t), -f(t)], [0.5 * f(t), 0.0, f(t)]]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_cubic_motion_is_predicted_exactly() {
+        let f = |t: f64| 0.3 + 0.2 * t - 0.05 * t * t + 0.01 * t * t * t;
+        let guess = starting_guess(&history(f, HISTORY), 2);
+        let want = history(|t| f(t + 1.0), 1);
+        for (g, w) in guess.iter().zip(&want[0]) {
+            for k in 0..3 {
+                assert!((g[k] - w[k]).abs() < 1e-12, "{guess:?} vs {want:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_oscillation_on_the_step_scale_falls_back_to_the_last_value() {
+        // +1, −1, +1, … : every extrapolation of higher order overshoots further.
+        let f = |t: f64| if (t as i64) % 2 == 0 { 1.0 } else { -1.0 };
+        let h = history(f, HISTORY);
+        assert_eq!(starting_guess(&h, 2), h[0]);
+    }
+
+    #[test]
+    fn short_histories_use_what_there_is() {
+        let f = |t: f64| 1.0 + t;
+        assert_eq!(starting_guess(&[], 2), vec![[0.0; 3]; 2]);
+        assert_eq!(starting_guess(&history(f, 1), 2), history(f, 1)[0]);
+        // Two values: linear, before any order could be judged.
+        assert_eq!(starting_guess(&history(f, 2), 2), history(|t| f(t + 1.0), 1)[0]);
     }
 }

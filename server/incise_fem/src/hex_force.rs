@@ -143,18 +143,11 @@ impl HexForceField {
     /// Element `e`'s vector `p` in its rotated frame, `Rᵀp`, as a 24-vector.
     #[inline]
     fn local_vector(&self, model: &HexModel, e: usize, p: &[Vec3]) -> [f64; 24] {
-        self.local_vector_of(model, e, |n| p[n])
-    }
-
-    /// [`HexForceField::local_vector`] of a vector given node by node.
-    #[allow(clippy::inline_always)] // measured: not inlined otherwise, and the 24-vector is copied
-    #[inline(always)]
-    fn local_vector_of(&self, model: &HexModel, e: usize, p: impl Fn(usize) -> Vec3) -> [f64; 24] {
         let el = &model.elements[e];
         let r = &self.matrices[e];
         let mut local = [0.0; 24];
         for (c, &n) in el.nodes.iter().enumerate() {
-            let v = p(n as usize);
+            let v = p[n as usize];
             let q =
                 if self.formulation == Formulation::Linear { v } else { mul_transpose_vec(r, &v) };
             local[3 * c..3 * c + 3].copy_from_slice(&q);
@@ -184,15 +177,13 @@ impl HexForceField {
             fill_element_pairs(per_element, |e, slots| {
                 self.products_from(model, scale, &local, e, slots);
             });
-            scatter(model, per_element, out);
+            scatter(&model.elements, per_element, out);
         });
     }
 
     /// `slots[i] = scale · R Kₑ local(e)` per corner for elements `e = first + i`. Neighbouring
     /// elements with the same stiffness (every full cell of a material) are multiplied as a pair,
     /// loading the matrix once; the result does not depend on the pairing.
-    #[allow(clippy::inline_always)] // measured: see `local_vector_of`
-    #[inline(always)]
     fn products_from(
         &self,
         model: &HexModel,
@@ -220,8 +211,7 @@ impl HexForceField {
     }
 
     /// `out += scale · R Kₑ Rᵀ p` for the elements in `elements` (starting at an even index), in
-    /// element order: one part of a stiffness product whose parts
-    /// are summed elsewhere.
+    /// element order: one part of a stiffness product whose parts are summed elsewhere.
     pub(crate) fn add_stiffness_products_of(
         &self,
         model: &HexModel,
@@ -235,14 +225,7 @@ impl HexForceField {
         for first in elements.clone().step_by(2) {
             let len = (elements.end - first).min(2);
             self.products_from(model, scale, &local, first, &mut slots[..len]);
-            for (i, fs) in slots[..len].iter().enumerate() {
-                for (c, &n) in model.elements[first + i].nodes.iter().enumerate() {
-                    let o = &mut out[n as usize];
-                    o[0] += fs[c][0];
-                    o[1] += fs[c][1];
-                    o[2] += fs[c][2];
-                }
-            }
+            scatter(&model.elements[first..], &slots[..len], out);
         }
     }
 
@@ -354,9 +337,10 @@ fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [[Vec3; 8]]) -> R) -> R {
     })
 }
 
-/// Adds per-element corner vectors into node vectors, in element order (deterministic).
-fn scatter(model: &HexModel, per_element: &[[Vec3; 8]], out: &mut [Vec3]) {
-    for (el, fs) in model.elements.iter().zip(per_element) {
+/// Adds per-element corner vectors into node vectors, in element order (deterministic):
+/// `per_element[i]` belongs to `elements[i]`.
+fn scatter(elements: &[crate::model::HexElement], per_element: &[[Vec3; 8]], out: &mut [Vec3]) {
+    for (el, fs) in elements.iter().zip(per_element) {
         for (c, &n) in el.nodes.iter().enumerate() {
             let o = &mut out[n as usize];
             o[0] += fs[c][0];

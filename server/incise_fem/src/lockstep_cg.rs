@@ -67,10 +67,13 @@ pub(crate) fn solve(sys: &System, rhs: &[Vec3], x: &mut [Vec3], settings: CgSett
     let sums: [RwLock<Vec<Vec3>>; PARTS] =
         std::array::from_fn(|_| RwLock::new(vec![[0.0; 3]; model.node_count()]));
     let spans: [Range<usize>; PARTS] = std::array::from_fn(|q| {
-        let touched = || model.elements[elements[q].clone()].iter().flat_map(|e| e.nodes);
-        let lo = touched().min().map_or(0, |n| n as usize);
-        let hi = touched().max().map_or(0, |n| n as usize + 1);
-        lo..hi
+        let touched = model.elements[elements[q].clone()].iter().flat_map(|e| e.nodes);
+        touched
+            .fold(None, |span: Option<Range<usize>>, n| {
+                let n = n as usize;
+                Some(span.map_or(n..n + 1, |s| s.start.min(n)..s.end.max(n + 1)))
+            })
+            .unwrap_or(0..0)
     });
     let shared = Shared {
         sys,

@@ -1,4 +1,4 @@
-//! Steps the hanging block of scene B for profiling (`perf record`), printing the time per step
+//! Steps the hanging block of scene B (gravity and the corner pull) for profiling (`perf record`), printing the time per step
 //! and the CG iterations: `cargo run --release -p incise_fem --example profile_block -- 22,15,12 implicit 0.01 50`.
 //! Schemes: `implicit` (Jacobi-CG), `cholesky-cg` (`REFRESH=n` caps the iterations before a
 //! refactorisation), `cholesky`, `explicit`, and `solve-only` (times one factorisation and the
@@ -29,7 +29,18 @@ fn main() {
             .expect("block grid");
     let model = HexModel::from_grid(&grid);
     let fixed = FixedNodes::plane(&model.rest, 2, size[2], 1e-9);
-    let loads = Loads::gravity([0.0, 0.0, -9.81]);
+    // Scene B's loads: gravity and a 0.5 N pull along (1, 1, −1)/√3 spread over the nodes within
+    // 22 mm of the corner (0.15, 0.10, 0).
+    let corner = [size[0], size[1], 0.0];
+    let dist =
+        |n: usize| (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt();
+    let patch: Vec<usize> = (0..model.node_count()).filter(|&n| dist(n) <= 0.022).collect();
+    let share = 0.5 / 3f64.sqrt() / patch.len() as f64;
+    let mut nodal = vec![[0.0; 3]; model.node_count()];
+    for &n in &patch {
+        nodal[n] = [share, share, -share];
+    }
+    let loads = Loads { gravity: [0.0, 0.0, -9.81], nodal };
     let mut ff = HexForceField::new(&model, Formulation::Corotational);
     let damping = Rayleigh { alpha: 2.0, beta: 0.01 };
     let solver = match scheme.as_str() {

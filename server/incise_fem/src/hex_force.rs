@@ -103,7 +103,8 @@ impl HexForceField {
         }
         let grad = self.centre_gradient;
         let previous = &self.rotations;
-        let mut updated = vec![Quat::IDENTITY; previous.len()];
+        // Each element's matrix is formed in the parallel loop with its rotation.
+        let mut updated = vec![(Quat::IDENTITY, incise_math::mat3::IDENTITY); previous.len()];
         fill_elements(&mut updated, |e| {
             let el = &model.elements[e];
             let mut f = [[0.0; 3]; 3];
@@ -117,10 +118,9 @@ impl HexForceField {
             }
             let mut q = previous[e];
             nearest_rotation(&f, &mut q, ROTATION_ITERATIONS);
-            q
+            (q, q.to_matrix())
         });
-        self.matrices = updated.iter().map(Quat::to_matrix).collect();
-        self.rotations = updated;
+        (self.rotations, self.matrices) = updated.into_iter().unzip();
     }
 
     /// Displacement of element `e` in its rotated frame, `Rᵀx − x₀`, as a 24-vector.

@@ -265,18 +265,27 @@ fn starting_guess(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
     let order = if judged < 2 {
         usize::from(judged == 1)
     } else {
-        (0..judged)
-            .map(|order| {
-                let miss: f64 = (0..n)
-                    .map(|i| {
-                        let p = predict(older, order, i);
-                        (0..3).map(|k| (latest[i][k] - p[k]).powi(2)).sum::<f64>()
-                    })
-                    .sum();
-                (order, miss)
-            })
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map_or(0, |(order, _)| order)
+        // The misses of all orders in one pass: order k's prediction is order k − 1's plus the
+        // k-th backward difference of the older values.
+        let mut miss = [0.0f64; MAX_ORDER + 1];
+        for i in 0..n {
+            for k in 0..3 {
+                let d: [f64; MAX_ORDER + 1] =
+                    std::array::from_fn(|j| older.get(j).map_or(0.0, |v| v[i][k]));
+                let differences = [
+                    d[0],
+                    d[0] - d[1],
+                    d[0] - 2.0 * d[1] + d[2],
+                    d[0] - 3.0 * d[1] + 3.0 * d[2] - d[3],
+                ];
+                let mut error = latest[i][k];
+                for (m, delta) in miss.iter_mut().zip(differences).take(judged) {
+                    error -= delta;
+                    *m += error * error;
+                }
+            }
+        }
+        (0..judged).min_by(|&a, &b| miss[a].total_cmp(&miss[b])).unwrap_or(0)
     };
     let order = order.min(history.len() - 1);
     (0..n).map(|i| predict(history, order, i)).collect()

@@ -229,6 +229,31 @@ impl HexForceField {
         }
     }
 
+    /// For the elements in `elements`, in element order: `forces += −R K ((Rᵀx − x₀) − s·Rᵀv)`
+    /// (the elastic forces and the stiffness term of an implicit step's right-hand side) and
+    /// `products += b · R K Rᵀ p`, both products of an element taken in one pass over its matrix.
+    #[allow(clippy::too_many_arguments)] // one element pass, its inputs and its two outputs
+    pub(crate) fn add_step_products(
+        &self,
+        model: &HexModel,
+        (x, s, v): (&[Vec3], f64, &[Vec3]),
+        (b, p): (f64, &[Vec3]),
+        elements: std::ops::Range<usize>,
+        forces: &mut [Vec3],
+        products: &mut [Vec3],
+    ) {
+        for e in elements {
+            let u = self.local_displacement(model, e, x);
+            let w = self.local_vector(model, e, v);
+            let q = self.local_vector(model, e, p);
+            let u: [f64; 24] = std::array::from_fn(|i| u[i] - s * w[i]);
+            let (g, k) = symmetric_product_pair(&model.elements[e].stiffness, &u, &q);
+            let el = std::slice::from_ref(&model.elements[e]);
+            scatter(el, &[self.global_corners(e, -1.0, &g)], forces);
+            scatter(el, &[self.global_corners(e, b, &k)], products);
+        }
+    }
+
     /// `f += elastic forces at positions x` (call [`HexForceField::update_rotations`] first).
     pub fn add_forces(&self, model: &HexModel, x: &[Vec3], f: &mut [Vec3]) {
         self.add_products(model, -1.0, |e| self.local_displacement(model, e, x), f);

@@ -437,10 +437,14 @@ impl BackwardEuler {
         let h = self.dt;
         let Rayleigh { alpha, beta } = self.damping;
         ff.update_rotations(model, &state.x);
-        // rhs = h (f_int + f_ext − αM v − (β + h) K v)
+        // rhs = h (f_int + f_ext − αM v − (β + h) K v). The lockstep solve forms the element
+        // terms itself, in its first pass; the others get them here.
+        let lockstep = self.solver == LinearSolver::JacobiCg && self.mass == MassMatrix::Lumped;
         let mut rhs = vec![[0.0; 3]; n];
         loads.add_to(model, &mut rhs);
-        ff.add_forces_and_stiffness_times(model, &state.x, -(beta + h), &state.v, &mut rhs);
+        if !lockstep {
+            ff.add_forces_and_stiffness_times(model, &state.x, -(beta + h), &state.v, &mut rhs);
+        }
         match self.mass {
             MassMatrix::Lumped => {
                 for (i, r) in rhs.iter_mut().enumerate() {
@@ -452,9 +456,11 @@ impl BackwardEuler {
             }
             MassMatrix::Consistent => model.add_consistent_mass_times(-alpha, &state.v, &mut rhs),
         }
-        for r in &mut rhs {
-            for k in 0..3 {
-                r[k] *= h;
+        if !lockstep {
+            for r in &mut rhs {
+                for k in 0..3 {
+                    r[k] *= h;
+                }
             }
         }
         let a = 1.0 + h * alpha;
@@ -479,7 +485,7 @@ impl BackwardEuler {
             ffr.add_stiffness_times(model, b, p, out);
         };
         let report = match self.solver {
-            LinearSolver::JacobiCg if !consistent => {
+            LinearSolver::JacobiCg if lockstep => {
                 let stale = self.jacobi.as_ref().is_none_or(|j| {
                     j.used as f64 * h >= JACOBI_MAX_AGE - 1e-12
                         || j.key != (a, b)
@@ -493,6 +499,13 @@ impl BackwardEuler {
                 jacobi.used += 1;
                 let pre = &jacobi.blocks;
                 let system = crate::lockstep_cg::System { model, ff: ffr, fixed, a, b, pre };
+                let rhs = crate::lockstep_cg::Rhs {
+                    x: &state.x,
+                    v: &state.v,
+                    node: &rhs,
+                    h,
+                    s: -(beta + h),
+                };
                 crate::lockstep_cg::solve(&system, &rhs, &mut dv, self.cg)
             }
             LinearSolver::JacobiCg => {

@@ -48,9 +48,25 @@ pub(crate) struct System<'a> {
     pub pre: &'a [Mat3],
 }
 
-/// Solves the system for `x`, starting from `x` (warm start); the same stopping rule and
-/// iteration as [`crate::cg::solve`].
-pub(crate) fn solve(sys: &System, rhs: &[Vec3], x: &mut [Vec3], settings: CgSettings) -> CgReport {
+/// An implicit step's right-hand side, `h (node + f(x) − s·K v)` with `f` the elastic forces:
+/// formed in the solve's first element pass together with `A x₀` (one pass over each element's
+/// matrix for both, and the sums over elements on both threads).
+pub(crate) struct Rhs<'a> {
+    /// Positions.
+    pub x: &'a [Vec3],
+    /// Velocities.
+    pub v: &'a [Vec3],
+    /// The node terms (external forces and mass damping).
+    pub node: &'a [Vec3],
+    /// The time step.
+    pub h: f64,
+    /// The stiffness term's factor, `−(β + h)`.
+    pub s: f64,
+}
+
+/// Solves the system with right-hand side `rhs` for `x`, starting from `x` (warm start); the
+/// same stopping rule and iteration as [`crate::cg::solve`].
+pub(crate) fn solve(sys: &System, rhs: &Rhs, x: &mut [Vec3], settings: CgSettings) -> CgReport {
     let model = sys.model;
     let nodes = team::split(0..model.node_count(), 1);
     let elements = team::split(0..model.elements.len(), 2);
@@ -58,13 +74,13 @@ pub(crate) fn solve(sys: &System, rhs: &[Vec3], x: &mut [Vec3], settings: CgSett
     let parts: [Mutex<NodePart>; PARTS] = std::array::from_fn(|q| {
         let range = nodes[q].clone();
         let zero = vec![[0.0; 3]; range.len()];
-        let mut b = rhs[range.clone()].to_vec();
-        project(sys.fixed, range.start, &mut b);
-        Mutex::new(NodePart { x: x[range].to_vec(), b, r: zero.clone(), ap: zero })
+        Mutex::new(NodePart { x: x[range].to_vec(), b: zero.clone(), r: zero.clone(), ap: zero })
     });
     let z: [RwLock<Vec<Vec3>>; PARTS] =
         std::array::from_fn(|q| RwLock::new(vec![[0.0; 3]; nodes[q].len()]));
     let sums: [RwLock<Vec<Vec3>>; PARTS] =
+        std::array::from_fn(|_| RwLock::new(vec![[0.0; 3]; model.node_count()]));
+    let forces: [RwLock<Vec<Vec3>>; PARTS] =
         std::array::from_fn(|_| RwLock::new(vec![[0.0; 3]; model.node_count()]));
     let spans: [Range<usize>; PARTS] = std::array::from_fn(|q| {
         let touched = model.elements[elements[q].clone()].iter().flat_map(|e| e.nodes);
@@ -82,11 +98,12 @@ pub(crate) fn solve(sys: &System, rhs: &[Vec3], x: &mut [Vec3], settings: CgSett
         parts: &parts,
         z: &z,
         sums: &sums,
+        forces: &forces,
         spans: &spans,
     };
     let start: &[Vec3] = x;
     let report = team::run(model.elements.len() >= TEAM_MIN, |m| {
-        shared.iterate(m, start.to_vec(), settings)
+        shared.iterate(m, rhs, start.to_vec(), settings)
     });
     for (q, part) in parts.iter().enumerate() {
         let part = part.lock().expect("no thread panicked");
@@ -105,6 +122,8 @@ struct Shared<'a> {
     z: &'a [RwLock<Vec<Vec3>>; PARTS],
     /// Each element part's stiffness product summed per node (zero outside its span).
     sums: &'a [RwLock<Vec<Vec3>>; PARTS],
+    /// Each element part's elastic forces summed per node (the right-hand side's element terms).
+    forces: &'a [RwLock<Vec<Vec3>>; PARTS],
     /// The nodes each element part touches.
     spans: &'a [Range<usize>; PARTS],
 }
@@ -116,7 +135,15 @@ impl Shared<'_> {
 
     /// The CG iteration, run by every member of the team; `p` is this thread's copy of the
     /// search direction, first the (projected) starting point.
-    fn iterate(&self, m: &team::Member, mut p: Vec<Vec3>, settings: CgSettings) -> CgReport {
+    fn iterate(
+        &self,
+        m: &team::Member,
+        rhs: &Rhs,
+        mut p: Vec<Vec3>,
+        settings: CgSettings,
+    ) -> CgReport {
+        // b and A x.
+        self.apply_step(m, &p, rhs);
         let [bb] = m.sum(|q| {
             let part = self.part(q);
             [dot(&part.b, &part.b)]
@@ -129,7 +156,6 @@ impl Shared<'_> {
             return CgReport { iterations: 0, relative_residual: 0.0, converged: true };
         }
         // r = b − A x, z = P r, p = z.
-        self.apply(m, &p);
         let [mut rz, rr] = m.sum(|q| {
             let mut guard = self.part(q);
             let part = &mut *guard;
@@ -195,6 +221,13 @@ impl Shared<'_> {
             );
         }
         m.barrier();
+        self.node_products(m, p);
+    }
+
+    /// `ap = a·M p + Σ parts' sums` (fixed nodes projected out) for this member's node parts,
+    /// once every element part's sum is complete.
+    fn node_products(&self, m: &team::Member, p: &[Vec3]) {
+        let sys = self.sys;
         let sums: [_; PARTS] =
             std::array::from_fn(|q| self.sums[q].read().expect("no thread panicked"));
         for q in m.parts() {
@@ -208,6 +241,41 @@ impl Shared<'_> {
             }
             project(sys.fixed, range.start, &mut part.ap);
         }
+    }
+
+    /// [`Shared::apply`] for the first product of an implicit step, which also forms the
+    /// right-hand side `b = h (node + f(x) − s·K v)` in the same element pass.
+    fn apply_step(&self, m: &team::Member, p: &[Vec3], rhs: &Rhs) {
+        let sys = self.sys;
+        let Rhs { x, v, node, h, s } = *rhs;
+        for q in m.parts() {
+            let mut sum = self.sums[q].write().expect("no thread panicked");
+            let mut force = self.forces[q].write().expect("no thread panicked");
+            sum[self.spans[q].clone()].fill([0.0; 3]);
+            force[self.spans[q].clone()].fill([0.0; 3]);
+            sys.ff.add_step_products(
+                sys.model,
+                (x, s, v),
+                (sys.b, p),
+                self.elements[q].clone(),
+                &mut force,
+                &mut sum,
+            );
+        }
+        m.barrier();
+        let forces: [_; PARTS] =
+            std::array::from_fn(|q| self.forces[q].read().expect("no thread panicked"));
+        for q in m.parts() {
+            let range = self.nodes[q].clone();
+            let mut part = self.part(q);
+            let (f0, f1) = (&forces[0][range.clone()], &forces[1][range.clone()]);
+            for (i, b) in part.b.iter_mut().enumerate() {
+                let n = &node[range.start + i];
+                *b = std::array::from_fn(|k| h * ((n[k] + f0[i][k]) + f1[i][k]));
+            }
+            project(sys.fixed, range.start, &mut part.b);
+        }
+        self.node_products(m, p);
     }
 
     /// `z = P r` on node part `q`, fixed nodes projected out; returns this part's `r·z` and
@@ -241,9 +309,10 @@ mod tests {
     use incise_grid::procedural::from_fn;
     use incise_grid::{BranchedGrid, Material, MaterialTable};
 
-    /// On a twisted block (every element rotated differently) the lockstep solve and the serial
-    /// [`crate::cg::solve`] reach the same solution, with the same iteration count: the same
-    /// iteration, only its sums grouped by part. Tolerance: both stop at ‖r‖ ≤ 1e-10 ‖b‖, so
+    /// On a twisted block (every element rotated differently) the lockstep solve, forming an
+    /// implicit step's right-hand side itself, and the serial [`crate::cg::solve`] given that
+    /// right-hand side assembled reach the same solution, with the same iteration count: the
+    /// same iteration, only its sums grouped by part. Tolerance: both stop at ‖r‖ ≤ 1e-10 ‖b‖, so
     /// their solutions differ by about that times the condition number (< 1e3 here).
     #[test]
     fn agrees_with_the_serial_solver() {
@@ -275,12 +344,20 @@ mod tests {
                 invert_block(&blk)
             })
             .collect();
-        let rhs: Vec<Vec3> = (0..model.node_count())
-            .map(|i| {
-                let s = i as f64;
-                [(0.3 * s).sin(), (0.7 * s).cos(), (1.1 * s).sin()].map(|c| c * 1e-4)
-            })
-            .collect();
+        // A step's right-hand side: positions `x`, some velocities and node terms. The serial
+        // solver gets it assembled as the integrator did before; the lockstep one forms it.
+        let wave = |i: usize, scale: f64| -> Vec3 {
+            let s = i as f64;
+            [(0.3 * s).sin(), (0.7 * s).cos(), (1.1 * s).sin()].map(|c| c * scale)
+        };
+        let v: Vec<Vec3> = (0..model.node_count()).map(|i| wave(i, 1e-3)).collect();
+        let node: Vec<Vec3> = (0..model.node_count()).map(|i| wave(i + 7, 1e-4)).collect();
+        let (h, s) = (1e-3, -(0.01 + 1e-3));
+        let mut rhs = node.clone();
+        ff.add_forces_and_stiffness_times(&model, &x, s, &v, &mut rhs);
+        for r in &mut rhs {
+            *r = r.map(|c| h * c);
+        }
         let settings = CgSettings { tolerance: 1e-10, max_iterations: 1000 };
         let apply = |p: &[Vec3], out: &mut [Vec3]| {
             for (i, o) in out.iter_mut().enumerate() {
@@ -293,7 +370,8 @@ mod tests {
         let rs = crate::cg::solve(apply, block_jacobi(&pre), &fixed, &rhs, &mut serial, settings);
         let sys = System { model: &model, ff: &ff, fixed: &fixed, a, b, pre: &pre };
         let mut lockstep = vec![[0.0; 3]; model.node_count()];
-        let rl = solve(&sys, &rhs, &mut lockstep, settings);
+        let step = Rhs { x: &x, v: &v, node: &node, h, s };
+        let rl = solve(&sys, &step, &mut lockstep, settings);
         assert!(rs.converged && rl.converged, "{rs:?} {rl:?}");
         assert!(rs.iterations.abs_diff(rl.iterations) <= 1, "{rs:?} {rl:?}");
         let norm = |v: &[Vec3]| v.iter().flatten().map(|c| c * c).sum::<f64>().sqrt();

@@ -1,7 +1,8 @@
 //! The implicit step's block-Jacobi CG (the same iteration as [`crate::cg::solve`]) run by a
 //! [`crate::team`] of two threads in lockstep, for the lumped-mass system `(a·M + b·K) x = rhs`.
 //!
-//! The nodes and the elements are each cut into two fixed parts. Per iteration:
+//! The nodes and the elements are each cut into two fixed parts. The first element pass forms the
+//! step's right-hand side and `A x₀` together ([`Rhs`]). Per iteration:
 //! 1. each element part sums its rotated stiffness products `b·R K Rᵀ p` into its own node
 //!    vector, in element order;
 //! 2. each node part forms `Ap` (its mass term, then the element parts' sums in part order) and

@@ -141,12 +141,9 @@ fn block_case(name: &str, cells: [usize; 3]) -> Case {
     let corner = [BLOCK[0], BLOCK[1], 0.0];
     let dist =
         |n: usize| (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt();
-    let patch: Vec<usize> = (0..model.node_count()).filter(|&n| dist(n) <= 0.022).collect();
-    let share = 0.5 / 3f64.sqrt() / patch.len() as f64;
-    let mut nodal = vec![[0.0; 3]; model.node_count()];
-    for &n in &patch {
-        nodal[n] = [share, share, -share];
-    }
+    let mut loads = Loads::gravity([0.0, 0.0, -9.81]);
+    let pull = 0.5 / 3f64.sqrt();
+    loads.add_patch(&model.rest, corner, 0.022, [pull, pull, -pull]);
     let probe =
         vec![(0..model.node_count()).min_by(|&a, &b| dist(a).total_cmp(&dist(b))).expect("nodes")];
     Case {
@@ -155,7 +152,7 @@ fn block_case(name: &str, cells: [usize; 3]) -> Case {
         level: 0,
         model,
         fixed,
-        loads: Loads { gravity: [0.0, 0.0, -9.81], nodal },
+        loads,
         probe,
         axis: None,
         reference: None,

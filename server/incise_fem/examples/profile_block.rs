@@ -31,16 +31,9 @@ fn main() {
     let fixed = FixedNodes::plane(&model.rest, 2, size[2], 1e-9);
     // Scene B's loads: gravity and a 0.5 N pull along (1, 1, −1)/√3 spread over the nodes within
     // 22 mm of the corner (0.15, 0.10, 0).
-    let corner = [size[0], size[1], 0.0];
-    let dist =
-        |n: usize| (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt();
-    let patch: Vec<usize> = (0..model.node_count()).filter(|&n| dist(n) <= 0.022).collect();
-    let share = 0.5 / 3f64.sqrt() / patch.len() as f64;
-    let mut nodal = vec![[0.0; 3]; model.node_count()];
-    for &n in &patch {
-        nodal[n] = [share, share, -share];
-    }
-    let loads = Loads { gravity: [0.0, 0.0, -9.81], nodal };
+    let mut loads = Loads::gravity([0.0, 0.0, -9.81]);
+    let pull = 0.5 / 3f64.sqrt();
+    loads.add_patch(&model.rest, [size[0], size[1], 0.0], 0.022, [pull, pull, -pull]);
     let mut ff = HexForceField::new(&model, Formulation::Corotational);
     let damping = Rayleigh { alpha: 2.0, beta: 0.01 };
     let solver = match scheme.as_str() {

@@ -32,6 +32,29 @@ impl Loads {
         Self { gravity: g, nodal: Vec::new() }
     }
 
+    /// Spreads `force` (N) evenly over the nodes of `rest` within `radius` of `centre`, added
+    /// to the per-node forces (a tool pushing or pulling on a patch: a single-node force would
+    /// depend on the mesh). Returns how many nodes share it (0: none lies that close, and
+    /// nothing is added).
+    pub fn add_patch(&mut self, rest: &[Vec3], centre: Vec3, radius: f64, force: Vec3) -> usize {
+        let patch: Vec<usize> = (0..rest.len())
+            .filter(|&n| {
+                (0..3).map(|a| (rest[n][a] - centre[a]).powi(2)).sum::<f64>().sqrt() <= radius
+            })
+            .collect();
+        if patch.is_empty() {
+            return 0;
+        }
+        self.nodal.resize(rest.len(), [0.0; 3]);
+        let share = 1.0 / patch.len() as f64;
+        for &n in &patch {
+            for a in 0..3 {
+                self.nodal[n][a] += force[a] * share;
+            }
+        }
+        patch.len()
+    }
+
     /// `f += external forces`.
     pub fn add_to(&self, model: &HexModel, f: &mut [Vec3]) {
         for (n, fi) in f.iter_mut().enumerate() {

@@ -16,18 +16,10 @@ use common::SIZE;
 /// and a 0.5 N pull along (1, 1, −1)/√3 spread over the nodes within 22 mm of (0.15, 0.10, 0).
 fn scene_b(cells: [usize; 3]) -> (HexModel, FixedNodes, Loads) {
     let (model, fixed) = common::block(cells);
-    let corner = [SIZE[0], SIZE[1], 0.0];
-    let patch: Vec<usize> = (0..model.node_count())
-        .filter(|&n| {
-            (0..3).map(|a| (model.rest[n][a] - corner[a]).powi(2)).sum::<f64>().sqrt() <= 0.022
-        })
-        .collect();
-    let dir = 0.5 / 3f64.sqrt() / patch.len() as f64;
-    let mut nodal = vec![[0.0; 3]; model.node_count()];
-    for &n in &patch {
-        nodal[n] = [dir, dir, -dir];
-    }
-    (model, fixed, Loads { gravity: [0.0, 0.0, -9.81], nodal })
+    let mut loads = Loads::gravity([0.0, 0.0, -9.81]);
+    let pull = 0.5 / 3f64.sqrt();
+    loads.add_patch(&model.rest, [SIZE[0], SIZE[1], 0.0], 0.022, [pull, pull, -pull]);
+    (model, fixed, loads)
 }
 
 fn corner_node(model: &HexModel) -> usize {

@@ -197,28 +197,16 @@ pub(crate) fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Load
 
 /// The scene's patch loads spread over the nodes at `rest` (N per node).
 fn patch_forces(config: &SceneConfig, rest: &[Vec3]) -> Result<Vec<Vec3>, String> {
-    let mut nodal = vec![[0.0; 3]; rest.len()];
+    let mut loads = Loads { gravity: [0.0; 3], nodal: vec![[0.0; 3]; rest.len()] };
     for (k, load) in config.loads.iter().enumerate() {
-        let patch: Vec<usize> = (0..rest.len())
-            .filter(|&n| {
-                (0..3).map(|a| (rest[n][a] - load.centre[a]).powi(2)).sum::<f64>().sqrt()
-                    <= load.radius
-            })
-            .collect();
-        if patch.is_empty() {
+        if loads.add_patch(rest, load.centre, load.radius, load.force) == 0 {
             return Err(format!(
                 "loads[{k}]: no node lies within {} m of {:?}",
                 load.radius, load.centre
             ));
         }
-        let share = 1.0 / patch.len() as f64;
-        for n in patch {
-            for a in 0..3 {
-                nodal[n][a] += load.force[a] * share;
-            }
-        }
     }
-    Ok(nodal)
+    Ok(loads.nodal)
 }
 
 impl Simulation {

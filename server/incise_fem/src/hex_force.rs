@@ -7,12 +7,15 @@
 //!   `incise_math::rotation` (warm-started from the previous call); forces are
 //!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit solves is `R K Rᵀ` per element.
 
-use crate::kernel::{symmetric_product, symmetric_product_pair};
+use crate::kernel::{
+    Local, component_major, gather, product, product_pair, scatter_add, to_global, to_local,
+    vectorized,
+};
 use crate::model::HexModel;
-use crate::parallel::{fill_element_pairs, fill_elements, map_elements};
-use incise_grid::hex8::corner;
+use crate::parallel::{fill_element_pairs, map_elements, update_elements};
+use incise_grid::hex8::{Mat24, corner};
 use incise_math::Vec3;
-use incise_math::mat3::{Mat3, mul_transpose_vec, mul_vec};
+use incise_math::mat3::Mat3;
 use incise_math::rotation::{Quat, nearest_rotation};
 use std::sync::Arc;
 
@@ -28,13 +31,36 @@ pub enum Formulation {
 /// Iterations allowed to refine an element rotation from its warm start.
 const ROTATION_ITERATIONS: usize = 100;
 
-/// Per-element rotations and the shape-function gradients at the element centre.
+/// Per-element rotations, the element matrices in the element passes' layout, and the
+/// shape-function gradients at the element centre.
 #[derive(Clone, Debug)]
 pub struct HexForceField {
     formulation: Formulation,
-    rotations: Vec<Quat>,
-    matrices: Vec<Mat3>,
+    frames: Vec<Frame>,
+    /// Each element's stiffness, component-major ([`component_major`]); elements that share a
+    /// matrix in the model share it here too.
+    stiffness: Vec<Arc<Mat24>>,
     centre_gradient: [Vec3; 8],
+}
+
+/// An element's rotation, as the quaternion the next extraction starts from and as a matrix.
+#[derive(Clone, Copy, Debug)]
+struct Frame {
+    q: Quat,
+    r: Mat3,
+}
+
+impl Frame {
+    const IDENTITY: Self = Self { q: Quat::IDENTITY, r: incise_math::mat3::IDENTITY };
+}
+
+/// What an element pass multiplies by the stiffness: a vector in each element's frame.
+#[derive(Clone, Copy)]
+enum Input<'a> {
+    /// `Rᵀp`.
+    Vector(&'a [Vec3]),
+    /// The displacement `Rᵀ(x − s·v) − x₀` (no `s·v` term when `moved` is `None`).
+    Displacement { x: &'a [Vec3], moved: Option<(f64, &'a [Vec3])> },
 }
 
 impl HexForceField {
@@ -46,11 +72,25 @@ impl HexForceField {
             let b = corner(c);
             std::array::from_fn(|a| if b[a] == 1 { 0.25 / s[a] } else { -0.25 / s[a] })
         });
-        let n = model.elements.len();
+        // One permuted copy per shared matrix, so the pairs of the element passes still find
+        // their neighbours' matrix the same.
+        let mut permuted: std::collections::HashMap<*const Mat24, Arc<Mat24>> =
+            std::collections::HashMap::new();
+        let stiffness = model
+            .elements
+            .iter()
+            .map(|el| {
+                Arc::clone(
+                    permuted
+                        .entry(Arc::as_ptr(&el.stiffness))
+                        .or_insert_with(|| Arc::new(component_major(&el.stiffness))),
+                )
+            })
+            .collect();
         Self {
             formulation,
-            rotations: vec![Quat::IDENTITY; n],
-            matrices: vec![incise_math::mat3::IDENTITY; n],
+            frames: vec![Frame::IDENTITY; model.elements.len()],
+            stiffness,
             centre_gradient,
         }
     }
@@ -77,8 +117,7 @@ impl HexForceField {
                 None => find(e.grid_id),
             };
             if let Some(j) = old {
-                out.rotations[i] = self.rotations[j];
-                out.matrices[i] = self.matrices[j];
+                out.frames[i] = self.frames[j];
             }
         }
         out
@@ -93,7 +132,7 @@ impl HexForceField {
     /// Rotation of element `e` (identity for the linear formulation).
     #[must_use]
     pub fn rotation(&self, e: usize) -> &Mat3 {
-        &self.matrices[e]
+        &self.frames[e].r
     }
 
     /// Re-extracts every element's rotation from positions `x` (no-op when linear).
@@ -102,10 +141,7 @@ impl HexForceField {
             return;
         }
         let grad = self.centre_gradient;
-        let previous = &self.rotations;
-        // Each element's matrix is formed in the parallel loop with its rotation.
-        let mut updated = vec![(Quat::IDENTITY, incise_math::mat3::IDENTITY); previous.len()];
-        fill_elements(&mut updated, |e| {
+        update_elements(&mut self.frames, |e, frame| {
             let el = &model.elements[e];
             let mut f = [[0.0; 3]; 3];
             for (c, &n) in el.nodes.iter().enumerate() {
@@ -116,98 +152,83 @@ impl HexForceField {
                     }
                 }
             }
-            let mut q = previous[e];
-            nearest_rotation(&f, &mut q, ROTATION_ITERATIONS);
-            (q, q.to_matrix())
-        });
-        (self.rotations, self.matrices) = updated.into_iter().unzip();
-    }
-
-    /// Displacement of element `e` in its rotated frame, `Rᵀx − x₀`, as a 24-vector.
-    #[inline]
-    fn local_displacement(&self, model: &HexModel, e: usize, x: &[Vec3]) -> [f64; 24] {
-        let el = &model.elements[e];
-        let r = &self.matrices[e];
-        let mut u = [0.0; 24];
-        for (c, &n) in el.nodes.iter().enumerate() {
-            let (p, p0) = (x[n as usize], model.rest[n as usize]);
-            let q =
-                if self.formulation == Formulation::Linear { p } else { mul_transpose_vec(r, &p) };
-            u[3 * c] = q[0] - p0[0];
-            u[3 * c + 1] = q[1] - p0[1];
-            u[3 * c + 2] = q[2] - p0[2];
-        }
-        u
-    }
-
-    /// Element `e`'s vector `p` in its rotated frame, `Rᵀp`, as a 24-vector.
-    #[inline]
-    fn local_vector(&self, model: &HexModel, e: usize, p: &[Vec3]) -> [f64; 24] {
-        let el = &model.elements[e];
-        let r = &self.matrices[e];
-        let mut local = [0.0; 24];
-        for (c, &n) in el.nodes.iter().enumerate() {
-            let v = p[n as usize];
-            let q =
-                if self.formulation == Formulation::Linear { v } else { mul_transpose_vec(r, &v) };
-            local[3 * c..3 * c + 3].copy_from_slice(&q);
-        }
-        local
-    }
-
-    /// `scale · R g` per corner: an element product back in the global frame.
-    #[inline]
-    fn global_corners(&self, e: usize, scale: f64, g: &[f64; 24]) -> [Vec3; 8] {
-        let r = &self.matrices[e];
-        std::array::from_fn(|c| {
-            let gc = [scale * g[3 * c], scale * g[3 * c + 1], scale * g[3 * c + 2]];
-            if self.formulation == Formulation::Linear { gc } else { mul_vec(r, &gc) }
-        })
-    }
-
-    /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product.
-    fn add_products(
-        &self,
-        model: &HexModel,
-        scale: f64,
-        local: impl Fn(usize) -> [f64; 24] + Sync,
-        out: &mut [Vec3],
-    ) {
-        with_scratch(model.elements.len(), |per_element| {
-            fill_element_pairs(per_element, |e, slots| {
-                self.products_from(model, scale, &local, e, slots);
-            });
-            scatter(&model.elements, per_element, out);
+            nearest_rotation(&f, &mut frame.q, ROTATION_ITERATIONS);
+            frame.r = frame.q.to_matrix();
         });
     }
 
-    /// `slots[i] = scale · R Kₑ local(e)` per corner for elements `e = first + i`. Neighbouring
-    /// elements with the same stiffness (every full cell of a material) are multiplied as a pair,
-    /// loading the matrix once; the result does not depend on the pairing.
+    /// Element `e`'s input in its frame, component-major.
+    #[allow(clippy::inline_always)] // inlined into the vectorised element passes
+    #[inline(always)]
+    fn local(&self, model: &HexModel, e: usize, input: Input) -> Local {
+        let nodes = &model.elements[e].nodes;
+        let r = &self.frames[e].r;
+        match input {
+            Input::Vector(p) => to_local(r, &gather(nodes, p)),
+            Input::Displacement { x, moved } => {
+                let mut g = gather(nodes, x);
+                if let Some((s, v)) = moved {
+                    let w = gather(nodes, v);
+                    for (gi, wi) in g.iter_mut().zip(w) {
+                        *gi = (-s).mul_add(wi, *gi);
+                    }
+                }
+                let rest = gather(nodes, &model.rest);
+                let mut u = to_local(r, &g);
+                for (ui, ri) in u.iter_mut().zip(rest) {
+                    *ui -= ri;
+                }
+                u
+            }
+        }
+    }
+
+    /// `slots[i] = scale · R Kₑ local(e)` for elements `e = first + i` (one or two). Neighbours
+    /// with the same stiffness (every full cell of a material) are multiplied as a pair, loading
+    /// the matrix once; the result does not depend on the pairing.
+    #[allow(clippy::inline_always)]
+    #[inline(always)]
     fn products_from(
         &self,
         model: &HexModel,
         scale: f64,
-        local: &impl Fn(usize) -> [f64; 24],
+        input: Input,
         first: usize,
-        slots: &mut [[Vec3; 8]],
+        slots: &mut [Local],
     ) {
-        for (k, pair) in slots.chunks_mut(2).enumerate() {
-            let e = first + 2 * k;
-            let shared = &model.elements[e].stiffness;
-            if let [a, b] = pair
-                && Arc::ptr_eq(shared, &model.elements[e + 1].stiffness)
-            {
-                let (g, h) = symmetric_product_pair(shared, &local(e), &local(e + 1));
-                *a = self.global_corners(e, scale, &g);
-                *b = self.global_corners(e + 1, scale, &h);
-            } else {
-                for (i, slot) in pair.iter_mut().enumerate() {
-                    let k = &model.elements[e + i].stiffness;
-                    *slot = self.global_corners(e + i, scale, &symmetric_product(k, &local(e + i)));
-                }
+        let k = &self.stiffness[first];
+        if let [a, b] = slots
+            && Arc::ptr_eq(k, &self.stiffness[first + 1])
+        {
+            let (g, h) = product_pair(
+                k,
+                &self.local(model, first, input),
+                &self.local(model, first + 1, input),
+            );
+            *a = to_global(&self.frames[first].r, scale, &g);
+            *b = to_global(&self.frames[first + 1].r, scale, &h);
+        } else {
+            for (i, slot) in slots.iter_mut().enumerate() {
+                let e = first + i;
+                let g = product(&self.stiffness[e], &self.local(model, e, input));
+                *slot = to_global(&self.frames[e].r, scale, &g);
             }
         }
+    }
+
+    /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product.
+    fn add_products(&self, model: &HexModel, scale: f64, input: Input, out: &mut [Vec3]) {
+        with_scratch(model.elements.len(), |per_element| {
+            fill_element_pairs(per_element, |e, slots| {
+                vectorized(
+                    #[inline(always)]
+                    || self.products_from(model, scale, input, e, slots),
+                );
+            });
+            for (el, g) in model.elements.iter().zip(per_element.iter()) {
+                scatter_add(&el.nodes, g, out);
+            }
+        });
     }
 
     /// `out += scale · R Kₑ Rᵀ p` for the elements in `elements` (starting at an even index), in
@@ -220,16 +241,22 @@ impl HexForceField {
         elements: std::ops::Range<usize>,
         out: &mut [Vec3],
     ) {
-        let local = |e| self.local_vector(model, e, p);
-        let mut slots = [[[0.0; 3]; 8]; 2];
-        for first in elements.clone().step_by(2) {
-            let len = (elements.end - first).min(2);
-            self.products_from(model, scale, &local, first, &mut slots[..len]);
-            scatter(&model.elements[first..], &slots[..len], out);
-        }
+        vectorized(
+            #[inline(always)]
+            || {
+                let mut slots = [[0.0; 24]; 2];
+                for first in elements.clone().step_by(2) {
+                    let len = (elements.end - first).min(2);
+                    self.products_from(model, scale, Input::Vector(p), first, &mut slots[..len]);
+                    for (i, g) in slots[..len].iter().enumerate() {
+                        scatter_add(&model.elements[first + i].nodes, g, out);
+                    }
+                }
+            },
+        );
     }
 
-    /// For the elements in `elements`, in element order: `forces += −R K ((Rᵀx − x₀) − s·Rᵀv)`
+    /// For the elements in `elements`, in element order: `forces += −R K (Rᵀ(x − s·v) − x₀)`
     /// (the elastic forces and the stiffness term of an implicit step's right-hand side) and
     /// `products += b · R K Rᵀ p`, both products of an element taken in one pass over its matrix.
     #[allow(clippy::too_many_arguments)] // one element pass, its inputs and its two outputs
@@ -242,30 +269,33 @@ impl HexForceField {
         forces: &mut [Vec3],
         products: &mut [Vec3],
     ) {
-        for e in elements {
-            let u = self.local_displacement(model, e, x);
-            let w = self.local_vector(model, e, v);
-            let q = self.local_vector(model, e, p);
-            let u: [f64; 24] = std::array::from_fn(|i| u[i] - s * w[i]);
-            let (g, k) = symmetric_product_pair(&model.elements[e].stiffness, &u, &q);
-            let el = std::slice::from_ref(&model.elements[e]);
-            scatter(el, &[self.global_corners(e, -1.0, &g)], forces);
-            scatter(el, &[self.global_corners(e, b, &k)], products);
-        }
+        vectorized(
+            #[inline(always)]
+            || {
+                for e in elements {
+                    let u = self.local(model, e, Input::Displacement { x, moved: Some((s, v)) });
+                    let q = self.local(model, e, Input::Vector(p));
+                    let (g, k) = product_pair(&self.stiffness[e], &u, &q);
+                    let (nodes, r) = (&model.elements[e].nodes, &self.frames[e].r);
+                    scatter_add(nodes, &to_global(r, -1.0, &g), forces);
+                    scatter_add(nodes, &to_global(r, b, &k), products);
+                }
+            },
+        );
     }
 
     /// `f += elastic forces at positions x` (call [`HexForceField::update_rotations`] first).
     pub fn add_forces(&self, model: &HexModel, x: &[Vec3], f: &mut [Vec3]) {
-        self.add_products(model, -1.0, |e| self.local_displacement(model, e, x), f);
+        self.add_products(model, -1.0, Input::Displacement { x, moved: None }, f);
     }
 
     /// `out += scale · K(x) p`, with `K` the (rotated) stiffness, element by element.
     pub fn add_stiffness_times(&self, model: &HexModel, scale: f64, p: &[Vec3], out: &mut [Vec3]) {
-        self.add_products(model, scale, |e| self.local_vector(model, e, p), out);
+        self.add_products(model, scale, Input::Vector(p), out);
     }
 
     /// `out += f(x) + scale · K(x) p` in one element loop (the right-hand side of an implicit
-    /// step): `−R K ((Rᵀx − x₀) − scale · Rᵀp)` per element.
+    /// step): `−R K (Rᵀ(x − scale · p) − x₀)` per element.
     pub fn add_forces_and_stiffness_times(
         &self,
         model: &HexModel,
@@ -274,16 +304,7 @@ impl HexForceField {
         p: &[Vec3],
         out: &mut [Vec3],
     ) {
-        self.add_products(
-            model,
-            -1.0,
-            |e| {
-                let u = self.local_displacement(model, e, x);
-                let q = self.local_vector(model, e, p);
-                std::array::from_fn(|i| u[i] - scale * q[i])
-            },
-            out,
-        );
+        self.add_products(model, -1.0, Input::Displacement { x, moved: Some((scale, p)) }, out);
     }
 
     /// The 3×3 diagonal blocks of the (rotated) stiffness, per node: `R K_cc Rᵀ` summed (in
@@ -293,7 +314,7 @@ impl HexForceField {
         let rotated = self.formulation == Formulation::Corotational;
         let per_element: Vec<[Mat3; 8]> = map_elements(model.elements.len(), |e| {
             let el = &model.elements[e];
-            let r = &self.matrices[e];
+            let r = &self.frames[e].r;
             std::array::from_fn(|c| {
                 let k: Mat3 = std::array::from_fn(|i| {
                     std::array::from_fn(|j| el.stiffness.get(3 * c + i, 3 * c + j))
@@ -319,9 +340,14 @@ impl HexForceField {
     #[must_use]
     pub fn energy(&self, model: &HexModel, x: &[Vec3]) -> f64 {
         let per_element = map_elements(model.elements.len(), |e| {
-            let u = self.local_displacement(model, e, x);
-            let g = symmetric_product(&model.elements[e].stiffness, &u);
-            0.5 * u.iter().zip(g.iter()).map(|(a, b)| a * b).sum::<f64>()
+            vectorized(
+                #[inline(always)]
+                || {
+                    let u = self.local(model, e, Input::Displacement { x, moved: None });
+                    let g = product(&self.stiffness[e], &u);
+                    0.5 * u.iter().zip(g.iter()).map(|(a, b)| a * b).sum::<f64>()
+                },
+            )
         });
         per_element.iter().sum()
     }
@@ -347,30 +373,17 @@ fn rotate_symmetric(r: &Mat3, k: &Mat3) -> Mat3 {
 thread_local! {
     /// Per-element results of the element loops, kept between calls: a fresh buffer per call
     /// (0.8 MB on scene B3) cost page faults and cross-core TLB flushes on every CG iteration.
-    static SCRATCH: std::cell::RefCell<Vec<[Vec3; 8]>> = const { std::cell::RefCell::new(Vec::new()) };
+    static SCRATCH: std::cell::RefCell<Vec<Local>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Runs `f` on a buffer of `n` per-element corner vectors borrowed from this thread's scratch.
-fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [[Vec3; 8]]) -> R) -> R {
+fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [Local]) -> R) -> R {
     SCRATCH.with(|cell| match cell.try_borrow_mut() {
         Ok(mut buf) => {
-            buf.resize(n, [[0.0; 3]; 8]);
+            buf.resize(n, [0.0; 24]);
             f(&mut buf[..n])
         }
         // Re-entered (a callback inside an element loop): a one-off buffer.
-        Err(_) => f(&mut vec![[[0.0; 3]; 8]; n]),
+        Err(_) => f(&mut vec![[0.0; 24]; n]),
     })
-}
-
-/// Adds per-element corner vectors into node vectors, in element order (deterministic):
-/// `per_element[i]` belongs to `elements[i]`.
-fn scatter(elements: &[crate::model::HexElement], per_element: &[[Vec3; 8]], out: &mut [Vec3]) {
-    for (el, fs) in elements.iter().zip(per_element) {
-        for (c, &n) in el.nodes.iter().enumerate() {
-            let o = &mut out[n as usize];
-            o[0] += fs[c][0];
-            o[1] += fs[c][1];
-            o[2] += fs[c][2];
-        }
-    }
 }

@@ -104,9 +104,15 @@ pub(crate) fn in_pool() -> bool {
 /// `out[i] = f(i)` for every index, on up to [`threads`] threads (contiguous chunks, one per
 /// thread).
 pub(crate) fn fill_elements<T: Send>(out: &mut [T], f: impl Fn(usize) -> T + Sync) {
+    update_elements(out, |i, o| *o = f(i));
+}
+
+/// `f(i, &mut out[i])` for every index, partitioned like [`fill_elements`] (each entry may
+/// depend on its old value).
+pub(crate) fn update_elements<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
     let run = |start: usize, out: &mut [T]| {
         for (k, o) in out.iter_mut().enumerate() {
-            *o = f(start + k);
+            f(start + k, o);
         }
     };
     let n = out.len();

@@ -8,7 +8,7 @@
 //!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit solves is `R K Rᵀ` per element.
 
 use crate::kernel::{
-    Local, component_major, gather, product, product_pair, scatter_add, to_global, to_local,
+    Local, Wide, component_major, gather, product, product_pair, scatter_add, to_global, to_local,
     vectorized,
 };
 use crate::model::HexModel;
@@ -16,7 +16,7 @@ use crate::parallel::{fill_element_pairs, map_elements, update_elements};
 use incise_grid::hex8::{Mat24, corner};
 use incise_math::Vec3;
 use incise_math::mat3::Mat3;
-use incise_math::rotation::{Quat, nearest_rotation};
+use incise_math::rotation::{Quat, nearest};
 use std::sync::Arc;
 
 /// How element rotations are treated.
@@ -141,10 +141,9 @@ impl HexForceField {
             return;
         }
         let grad = self.centre_gradient;
-        update_elements(&mut self.frames, |e, frame| {
-            let el = &model.elements[e];
+        let gradient = |e: usize| {
             let mut f = [[0.0; 3]; 3];
-            for (c, &n) in el.nodes.iter().enumerate() {
+            for (c, &n) in model.elements[e].nodes.iter().enumerate() {
                 let p = x[n as usize];
                 for r in 0..3 {
                     for k in 0..3 {
@@ -152,19 +151,21 @@ impl HexForceField {
                     }
                 }
             }
-            nearest_rotation(&f, &mut frame.q, ROTATION_ITERATIONS);
-            frame.r = frame.q.to_matrix();
+            f
+        };
+        update_elements(&mut self.frames, |e, frame| {
+            frame.r = nearest(&gradient(e), &mut frame.q, ROTATION_ITERATIONS).matrix;
         });
     }
 
     /// Element `e`'s input in its frame, component-major.
     #[allow(clippy::inline_always)] // inlined into the vectorised element passes
     #[inline(always)]
-    fn local(&self, model: &HexModel, e: usize, input: Input) -> Local {
+    fn local(&self, wide: Wide, model: &HexModel, e: usize, input: Input) -> Local {
         let nodes = &model.elements[e].nodes;
         let r = &self.frames[e].r;
         match input {
-            Input::Vector(p) => to_local(r, &gather(nodes, p)),
+            Input::Vector(p) => to_local(wide, r, &gather(nodes, p)),
             Input::Displacement { x, moved } => {
                 let mut g = gather(nodes, x);
                 if let Some((s, v)) = moved {
@@ -174,7 +175,7 @@ impl HexForceField {
                     }
                 }
                 let rest = gather(nodes, &model.rest);
-                let mut u = to_local(r, &g);
+                let mut u = to_local(wide, r, &g);
                 for (ui, ri) in u.iter_mut().zip(rest) {
                     *ui -= ri;
                 }
@@ -190,6 +191,7 @@ impl HexForceField {
     #[inline(always)]
     fn products_from(
         &self,
+        wide: Wide,
         model: &HexModel,
         scale: f64,
         input: Input,
@@ -202,16 +204,16 @@ impl HexForceField {
         {
             let (g, h) = product_pair(
                 k,
-                &self.local(model, first, input),
-                &self.local(model, first + 1, input),
+                &self.local(wide, model, first, input),
+                &self.local(wide, model, first + 1, input),
             );
-            *a = to_global(&self.frames[first].r, scale, &g);
-            *b = to_global(&self.frames[first + 1].r, scale, &h);
+            *a = to_global(wide, &self.frames[first].r, scale, &g);
+            *b = to_global(wide, &self.frames[first + 1].r, scale, &h);
         } else {
             for (i, slot) in slots.iter_mut().enumerate() {
                 let e = first + i;
-                let g = product(&self.stiffness[e], &self.local(model, e, input));
-                *slot = to_global(&self.frames[e].r, scale, &g);
+                let g = product(&self.stiffness[e], &self.local(wide, model, e, input));
+                *slot = to_global(wide, &self.frames[e].r, scale, &g);
             }
         }
     }
@@ -222,7 +224,7 @@ impl HexForceField {
             fill_element_pairs(per_element, |e, slots| {
                 vectorized(
                     #[inline(always)]
-                    || self.products_from(model, scale, input, e, slots),
+                    |wide| self.products_from(wide, model, scale, input, e, slots),
                 );
             });
             for (el, g) in model.elements.iter().zip(per_element.iter()) {
@@ -243,11 +245,18 @@ impl HexForceField {
     ) {
         vectorized(
             #[inline(always)]
-            || {
+            |wide| {
                 let mut slots = [[0.0; 24]; 2];
                 for first in elements.clone().step_by(2) {
                     let len = (elements.end - first).min(2);
-                    self.products_from(model, scale, Input::Vector(p), first, &mut slots[..len]);
+                    self.products_from(
+                        wide,
+                        model,
+                        scale,
+                        Input::Vector(p),
+                        first,
+                        &mut slots[..len],
+                    );
                     for (i, g) in slots[..len].iter().enumerate() {
                         scatter_add(&model.elements[first + i].nodes, g, out);
                     }
@@ -271,14 +280,15 @@ impl HexForceField {
     ) {
         vectorized(
             #[inline(always)]
-            || {
+            |wide| {
                 for e in elements {
-                    let u = self.local(model, e, Input::Displacement { x, moved: Some((s, v)) });
-                    let q = self.local(model, e, Input::Vector(p));
+                    let u =
+                        self.local(wide, model, e, Input::Displacement { x, moved: Some((s, v)) });
+                    let q = self.local(wide, model, e, Input::Vector(p));
                     let (g, k) = product_pair(&self.stiffness[e], &u, &q);
                     let (nodes, r) = (&model.elements[e].nodes, &self.frames[e].r);
-                    scatter_add(nodes, &to_global(r, -1.0, &g), forces);
-                    scatter_add(nodes, &to_global(r, b, &k), products);
+                    scatter_add(nodes, &to_global(wide, r, -1.0, &g), forces);
+                    scatter_add(nodes, &to_global(wide, r, b, &k), products);
                 }
             },
         );
@@ -342,8 +352,8 @@ impl HexForceField {
         let per_element = map_elements(model.elements.len(), |e| {
             vectorized(
                 #[inline(always)]
-                || {
-                    let u = self.local(model, e, Input::Displacement { x, moved: None });
+                |wide| {
+                    let u = self.local(wide, model, e, Input::Displacement { x, moved: None });
                     let g = product(&self.stiffness[e], &u);
                     0.5 * u.iter().zip(g.iter()).map(|(a, b)| a * b).sum::<f64>()
                 },

@@ -110,19 +110,24 @@ pub(crate) fn fill_elements<T: Send>(out: &mut [T], f: impl Fn(usize) -> T + Syn
 /// `f(i, &mut out[i])` for every index, partitioned like [`fill_elements`] (each entry may
 /// depend on its old value).
 pub(crate) fn update_elements<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
-    let run = |start: usize, out: &mut [T]| {
-        for (k, o) in out.iter_mut().enumerate() {
+    update_runs(out, |start, run| {
+        for (k, o) in run.iter_mut().enumerate() {
             f(start + k, o);
         }
-    };
+    });
+}
+
+/// `f(start, run)` for contiguous runs of `out` that cover it, one per thread ([`threads`]);
+/// `start` is the index of `run[0]`.
+pub(crate) fn update_runs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
     let n = out.len();
     let t = threads();
     if t == 1 || n < PARALLEL_MIN {
-        run(0, out);
+        f(0, out);
         return;
     }
     let chunk = n.div_ceil(t);
-    on_chunks(out, chunk, &run);
+    on_chunks(out, chunk, &f);
 }
 
 /// `run(start, chunk)` for consecutive chunks of `out`, the first on the calling thread and the

@@ -14,6 +14,7 @@ use crate::cholesky::{Precision, SystemFactor};
 use crate::constraints::FixedNodes;
 use crate::hex_force::{Formulation, HexForceField};
 use crate::model::HexModel;
+use crate::parallel::{join_if, update_elements, update_runs};
 use incise_math::Vec3;
 
 /// External loads: gravity (m/s²) on every node's lumped mass, plus per-node forces (N).
@@ -58,14 +59,20 @@ impl Loads {
     /// `f += external forces`.
     pub fn add_to(&self, model: &HexModel, f: &mut [Vec3]) {
         for (n, fi) in f.iter_mut().enumerate() {
-            let m = model.lumped_mass[n];
+            self.add_at(model, n, fi);
+        }
+    }
+
+    /// `f += the external force on node n`.
+    #[inline]
+    fn add_at(&self, model: &HexModel, n: usize, f: &mut Vec3) {
+        let m = model.lumped_mass[n];
+        for k in 0..3 {
+            f[k] += m * self.gravity[k];
+        }
+        if let Some(extra) = self.nodal.get(n) {
             for k in 0..3 {
-                fi[k] += m * self.gravity[k];
-            }
-            if let Some(extra) = self.nodal.get(n) {
-                for k in 0..3 {
-                    fi[k] += extra[k];
-                }
+                f[k] += extra[k];
             }
         }
     }
@@ -122,20 +129,18 @@ fn preconditioner(
     a: f64,
     b: f64,
 ) -> Vec<incise_math::mat3::Mat3> {
-    ff.diagonal_blocks(model)
-        .iter()
-        .zip(mass)
-        .map(|(k, &m)| {
-            let mut blk = [[0.0; 3]; 3];
-            for i in 0..3 {
-                for j in 0..3 {
-                    blk[i][j] = b * k[i][j];
-                }
-                blk[i][i] += a * m;
+    let mut blocks = ff.diagonal_blocks(model);
+    update_elements(&mut blocks, |n, k| {
+        let mut blk = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                blk[i][j] = b * k[i][j];
             }
-            invert_block(&blk)
-        })
-        .collect()
+            blk[i][i] += a * mass[n];
+        }
+        *k = invert_block(&blk);
+    });
+    blocks
 }
 
 /// Newton iterations to static equilibrium from `x` (fixed nodes keep their positions in `x`).
@@ -264,14 +269,6 @@ const HISTORY: usize = MAX_ORDER + 2;
 const WEIGHTS: [&[f64]; MAX_ORDER + 1] =
     [&[1.0], &[2.0, -1.0], &[3.0, -3.0, 1.0], &[4.0, -6.0, 4.0, -1.0]];
 
-/// The polynomial of order `order` through `values` (the most recent first) one step ahead, at
-/// entry `i`.
-fn predict(values: &[Vec<Vec3>], order: usize, i: usize) -> Vec3 {
-    std::array::from_fn(|k| {
-        WEIGHTS[order].iter().zip(values).fold(0.0, |acc, (w, d)| acc + w * d[i][k])
-    })
-}
-
 /// CG's starting guess from the last steps' velocity changes (`history`, the most recent first):
 /// the polynomial of the order that would have predicted the most recent one best from those
 /// before it, extrapolated one step (zero with no history; linear before there is a choice).
@@ -288,31 +285,55 @@ fn starting_guess(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
     let order = if judged < 2 {
         usize::from(judged == 1)
     } else {
-        // The misses of all orders in one pass: order k's prediction is order k − 1's plus the
-        // k-th backward difference of the older values.
-        let mut miss = [0.0f64; MAX_ORDER + 1];
-        for i in 0..n {
-            for k in 0..3 {
-                let d: [f64; MAX_ORDER + 1] =
-                    std::array::from_fn(|j| older.get(j).map_or(0.0, |v| v[i][k]));
-                let differences = [
-                    d[0],
-                    d[0] - d[1],
-                    d[0] - 2.0 * d[1] + d[2],
-                    d[0] - 3.0 * d[1] + 3.0 * d[2] - d[3],
-                ];
-                let mut error = latest[i][k];
-                for (m, delta) in miss.iter_mut().zip(differences).take(judged) {
-                    error -= delta;
-                    *m += error * error;
-                }
-            }
-        }
+        // Two fixed halves of the entries (on two threads where allowed), their sums added:
+        // the same bits on one thread.
+        let entries = 3 * n;
+        let half = entries / 2;
+        let zeros = if judged <= MAX_ORDER { vec![0.0; entries] } else { Vec::new() };
+        let olders: [&[f64]; MAX_ORDER + 1] =
+            std::array::from_fn(|j| older.get(j).map_or(&zeros[..], |v| v.as_flattened()));
+        let latest = latest.as_flattened();
+        let (first, second) = join_if(
+            n >= PARALLEL_NODES,
+            || misses(&latest[..half], &olders.map(|o| &o[..half])),
+            || misses(&latest[half..], &olders.map(|o| &o[half..])),
+        );
+        let miss: [f64; MAX_ORDER + 1] = std::array::from_fn(|j| first[j] + second[j]);
         (0..judged).min_by(|&a, &b| miss[a].total_cmp(&miss[b])).unwrap_or(0)
     };
     let order = order.min(history.len() - 1);
-    (0..n).map(|i| predict(history, order, i)).collect()
+    let mut guess = vec![[0.0; 3]; n];
+    update_runs(guess.as_flattened_mut(), |start, run| {
+        let values: Vec<&[f64]> =
+            history.iter().map(|h| &h.as_flattened()[start..start + run.len()]).collect();
+        for (g, i) in run.iter_mut().zip(0..) {
+            *g = WEIGHTS[order].iter().zip(&values).fold(0.0, |acc, (w, v)| acc + w * v[i]);
+        }
+    });
+    guess
 }
+
+/// How far each order's prediction of `latest` from `older` (the values before it, most recent
+/// first) misses, summed over the entries: order k's prediction is order k − 1's plus the k-th
+/// backward difference. Four lanes of partial sums, added in lane order at the end: a loop the
+/// compiler vectorises.
+fn misses(latest: &[f64], older: &[&[f64]; MAX_ORDER + 1]) -> [f64; MAX_ORDER + 1] {
+    let mut lanes = [[0.0f64; 4]; MAX_ORDER + 1];
+    for (i, &value) in latest.iter().enumerate() {
+        let d: [f64; MAX_ORDER + 1] = std::array::from_fn(|j| older[j][i]);
+        let differences =
+            [d[0], d[0] - d[1], d[0] - 2.0 * d[1] + d[2], d[0] - 3.0 * d[1] + 3.0 * d[2] - d[3]];
+        let mut error = value;
+        for (lane, delta) in lanes.iter_mut().zip(differences) {
+            error -= delta;
+            lane[i % 4] += error * error;
+        }
+    }
+    lanes.map(|l| ((l[0] + l[1]) + l[2]) + l[3])
+}
+
+/// Nodes from which the per-node passes of a step run on two threads.
+const PARALLEL_NODES: usize = 1_500;
 
 /// How long (simulated seconds) block-Jacobi blocks serve before they are rebuilt with the
 /// current rotations. Any symmetric positive definite blocks precondition correctly (CG stops at
@@ -464,22 +485,21 @@ impl BackwardEuler {
         // terms itself, in its first pass; the others get them here.
         let lockstep = self.solver == LinearSolver::JacobiCg && self.mass == MassMatrix::Lumped;
         let mut rhs = vec![[0.0; 3]; n];
-        loads.add_to(model, &mut rhs);
+        match self.mass {
+            MassMatrix::Lumped => update_elements(&mut rhs, |i, r| {
+                loads.add_at(model, i, r);
+                let m = model.lumped_mass[i];
+                for k in 0..3 {
+                    r[k] -= alpha * m * state.v[i][k];
+                }
+            }),
+            MassMatrix::Consistent => {
+                loads.add_to(model, &mut rhs);
+                model.add_consistent_mass_times(-alpha, &state.v, &mut rhs);
+            }
+        }
         if !lockstep {
             ff.add_forces_and_stiffness_times(model, &state.x, -(beta + h), &state.v, &mut rhs);
-        }
-        match self.mass {
-            MassMatrix::Lumped => {
-                for (i, r) in rhs.iter_mut().enumerate() {
-                    let m = model.lumped_mass[i];
-                    for k in 0..3 {
-                        r[k] -= alpha * m * state.v[i][k];
-                    }
-                }
-            }
-            MassMatrix::Consistent => model.add_consistent_mass_times(-alpha, &state.v, &mut rhs),
-        }
-        if !lockstep {
             for r in &mut rhs {
                 for k in 0..3 {
                     r[k] *= h;

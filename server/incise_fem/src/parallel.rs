@@ -54,7 +54,7 @@ pub(crate) fn pool() -> &'static rayon::ThreadPool {
 /// Jobs handed to the pool and not started yet.
 static WAITING: AtomicUsize = AtomicUsize::new(0);
 
-/// Whether a worker is lingering (see [`spawn`]).
+/// Whether a worker is lingering (see [`Pending::spawn`]).
 static LINGERING: AtomicBool = AtomicBool::new(false);
 
 /// How long a worker stays awake after its job for the next one: `INCISE_LINGER_US`
@@ -69,18 +69,63 @@ fn linger_time() -> std::time::Duration {
     })
 }
 
-/// Hands `job` to the pool within scope `s`. After it the worker stays awake (see [`linger_time`], a
-/// separate job that spins until more work is handed over), so the next loop's job starts at
-/// once instead of waiting for a wake-up.
-pub(crate) fn spawn<'scope>(s: &rayon::Scope<'scope>, job: impl FnOnce() + Send + 'scope) {
-    WAITING.fetch_add(1, Ordering::AcqRel);
-    s.spawn(move |_| {
-        WAITING.fetch_sub(1, Ordering::AcqRel);
-        job();
-        if !linger_time().is_zero() && !LINGERING.swap(true, Ordering::AcqRel) {
-            pool().spawn(linger);
+/// Jobs handed to the pool within one scope and not finished yet. The caller waits for them by
+/// spinning ([`Pending::wait`]) before its scope ends: left to the scope, a caller outside the
+/// pool that finished its share first blocks on a condition variable, and here (a virtual
+/// machine) the wake-up after the job ends costs tens of microseconds, on every element loop.
+pub(crate) struct Pending(AtomicUsize);
+
+impl Pending {
+    /// No jobs yet.
+    pub(crate) fn new() -> Self {
+        Self(AtomicUsize::new(0))
+    }
+
+    /// Hands `job` to the pool within scope `s`. After it the worker stays awake (see
+    /// [`linger_time`], a separate job that spins until more work is handed over), so the next
+    /// loop's job starts at once instead of waiting for a wake-up.
+    pub(crate) fn spawn<'scope>(
+        &'scope self,
+        s: &rayon::Scope<'scope>,
+        job: impl FnOnce() + Send + 'scope,
+    ) {
+        self.0.fetch_add(1, Ordering::AcqRel);
+        WAITING.fetch_add(1, Ordering::AcqRel);
+        s.spawn(move |_| {
+            WAITING.fetch_sub(1, Ordering::AcqRel);
+            {
+                // Counted as finished when it unwinds too: its panic reaches the caller when
+                // the scope ends.
+                let _finished = Finished(&self.0);
+                job();
+            }
+            if !linger_time().is_zero() && !LINGERING.swap(true, Ordering::AcqRel) {
+                pool().spawn(linger);
+            }
+        });
+    }
+
+    /// Spins, then yields, until every job handed over has finished.
+    pub(crate) fn wait(&self) {
+        let mut spins = 0u32;
+        while self.0.load(Ordering::Acquire) > 0 {
+            if spins < 20_000 {
+                spins += 1;
+                std::hint::spin_loop();
+            } else {
+                std::thread::yield_now();
+            }
         }
-    });
+    }
+}
+
+/// Counts its job as finished when dropped.
+struct Finished<'a>(&'a AtomicUsize);
+
+impl Drop for Finished<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 /// Spins until a job is handed to the pool or [`linger_time`] has passed.
@@ -134,11 +179,13 @@ pub(crate) fn update_runs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + 
 /// others on the pool.
 fn on_chunks<T: Send>(out: &mut [T], chunk: usize, run: &(impl Fn(usize, &mut [T]) + Sync)) {
     let (first, rest) = out.split_at_mut(chunk.min(out.len()));
+    let pending = Pending::new();
     pool().in_place_scope(|s| {
         for (i, part) in rest.chunks_mut(chunk).enumerate() {
-            spawn(s, move || run((i + 1) * chunk, part));
+            pending.spawn(s, move || run((i + 1) * chunk, part));
         }
         run(0, first);
+        pending.wait();
     });
 }
 
@@ -182,9 +229,12 @@ pub(crate) fn join_if<A: Send, B: Send>(
         return (a(), b());
     }
     let mut second = None;
+    let pending = Pending::new();
     let first = pool().in_place_scope(|s| {
-        spawn(s, || second = Some(b()));
-        a()
+        pending.spawn(s, || second = Some(b()));
+        let first = a();
+        pending.wait();
+        first
     });
     (first, second.expect("the scope waited for its job"))
 }

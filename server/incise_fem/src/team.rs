@@ -129,13 +129,16 @@ pub(crate) fn run<R: Send>(parallel: bool, body: impl Fn(&Member) -> R + Sync) -
         return body(&member(0));
     }
     let (body, member) = (&body, &member);
+    let pending = crate::parallel::Pending::new();
     crate::parallel::pool().in_place_scope(|s| {
-        crate::parallel::spawn(s, move || {
+        pending.spawn(s, move || {
             let _poison = PoisonOnPanic(member(1).team);
             body(&member(1));
         });
         let _poison = PoisonOnPanic(&team);
-        body(&member(0))
+        let result = body(&member(0));
+        pending.wait();
+        result
     })
 }
 

@@ -12,7 +12,7 @@ use crate::kernel::{
     vectorized,
 };
 use crate::model::HexModel;
-use crate::parallel::{fill_element_pairs, map_elements, update_elements};
+use crate::parallel::{fill_element_pairs, join_if, map_elements, update_elements};
 use incise_grid::hex8::{Mat24, corner};
 use incise_math::Vec3;
 use incise_math::mat3::Mat3;
@@ -321,29 +321,58 @@ impl HexForceField {
     /// element order).
     #[must_use]
     pub fn diagonal_blocks(&self, model: &HexModel) -> Vec<Mat3> {
+        let mut out = Vec::new();
+        self.diagonal_blocks_into(model, &mut out, &mut Vec::new());
+        out
+    }
+
+    /// [`HexForceField::diagonal_blocks`] into `out`, with `scratch` for the second half's sums:
+    /// buffers kept between calls (fresh ones cost page faults on every rebuild).
+    pub(crate) fn diagonal_blocks_into(
+        &self,
+        model: &HexModel,
+        out: &mut Vec<Mat3>,
+        scratch: &mut Vec<Mat3>,
+    ) {
         let rotated = self.formulation == Formulation::Corotational;
-        let per_element: Vec<[Mat3; 8]> = map_elements(model.elements.len(), |e| {
-            let el = &model.elements[e];
-            let r = &self.frames[e].r;
-            std::array::from_fn(|c| {
-                let k: Mat3 = std::array::from_fn(|i| {
-                    std::array::from_fn(|j| el.stiffness.get(3 * c + i, 3 * c + j))
-                });
-                if rotated { rotate_symmetric(r, &k) } else { k }
-            })
-        });
-        let mut out = vec![[[0.0; 3]; 3]; model.node_count()];
-        for (el, blocks) in model.elements.iter().zip(&per_element) {
-            for (&n, k) in el.nodes.iter().zip(blocks) {
-                let d = &mut out[n as usize];
-                for i in 0..3 {
-                    for j in 0..3 {
-                        d[i][j] += k[i][j];
+        let n = model.node_count();
+        // Two fixed halves of the elements, each summed into its own blocks in element order,
+        // then added: the same bits on one thread or two.
+        let half = |elements: std::ops::Range<usize>, out: &mut [Mat3]| {
+            for e in elements {
+                let el = &model.elements[e];
+                for (c, &node) in el.nodes.iter().enumerate() {
+                    let k: Mat3 = std::array::from_fn(|i| {
+                        std::array::from_fn(|j| el.stiffness.get(3 * c + i, 3 * c + j))
+                    });
+                    let k = if rotated { rotate_symmetric(&self.frames[e].r, &k) } else { k };
+                    let d = &mut out[node as usize];
+                    for i in 0..3 {
+                        for j in 0..3 {
+                            d[i][j] += k[i][j];
+                        }
                     }
                 }
             }
+        };
+        let count = model.elements.len();
+        for buffer in [&mut *out, &mut *scratch] {
+            buffer.clear();
+            buffer.resize(n, [[0.0; 3]; 3]);
         }
-        out
+        join_if(
+            count >= crate::parallel::PARALLEL_MIN,
+            || half(0..count / 2, out),
+            || half(count / 2..count, scratch),
+        );
+        update_elements(out, |node, d| {
+            let s = &scratch[node];
+            for i in 0..3 {
+                for j in 0..3 {
+                    d[i][j] += s[i][j];
+                }
+            }
+        });
     }
 
     /// Elastic energy `½ Σₑ uₑᵀ Kₑ uₑ` (J), with `u` in each element's rotated frame.

@@ -129,8 +129,23 @@ fn preconditioner(
     a: f64,
     b: f64,
 ) -> Vec<incise_math::mat3::Mat3> {
-    let mut blocks = ff.diagonal_blocks(model);
-    update_elements(&mut blocks, |n, k| {
+    let mut blocks = Vec::new();
+    preconditioner_into(model, ff, mass, (a, b), &mut blocks, &mut Vec::new());
+    blocks
+}
+
+/// [`preconditioner`] into `blocks`, with `scratch` for the element sums (buffers kept between
+/// rebuilds).
+fn preconditioner_into(
+    model: &HexModel,
+    ff: &HexForceField,
+    mass: &[f64],
+    (a, b): (f64, f64),
+    blocks: &mut Vec<incise_math::mat3::Mat3>,
+    scratch: &mut Vec<incise_math::mat3::Mat3>,
+) {
+    ff.diagonal_blocks_into(model, blocks, scratch);
+    update_elements(blocks, |n, k| {
         let mut blk = [[0.0; 3]; 3];
         for i in 0..3 {
             for j in 0..3 {
@@ -140,7 +155,6 @@ fn preconditioner(
         }
         *k = invert_block(&blk);
     });
-    blocks
 }
 
 /// Newton iterations to static equilibrium from `x` (fixed nodes keep their positions in `x`).
@@ -277,9 +291,11 @@ const WEIGHTS: [&[f64]; MAX_ORDER + 1] =
 /// motion is not smooth on the step's scale, a lower order wins. The choice uses vector sums
 /// only (no operator product), is made the same way every run, and changes where CG starts, not
 /// where it stops.
-fn starting_guess(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
+fn starting_guess(history: &[Vec<Vec3>], guess: &mut [Vec3]) {
+    let n = guess.len();
     let Some((latest, older)) = history.split_first() else {
-        return vec![[0.0; 3]; n];
+        guess.fill([0.0; 3]);
+        return;
     };
     let judged = older.len().min(MAX_ORDER + 1);
     let order = if judged < 2 {
@@ -302,7 +318,6 @@ fn starting_guess(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
         (0..judged).min_by(|&a, &b| miss[a].total_cmp(&miss[b])).unwrap_or(0)
     };
     let order = order.min(history.len() - 1);
-    let mut guess = vec![[0.0; 3]; n];
     update_runs(guess.as_flattened_mut(), |start, run| {
         let values: Vec<&[f64]> =
             history.iter().map(|h| &h.as_flattened()[start..start + run.len()]).collect();
@@ -310,7 +325,6 @@ fn starting_guess(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
             *g = WEIGHTS[order].iter().zip(&values).fold(0.0, |acc, (w, v)| acc + w * v[i]);
         }
     });
-    guess
 }
 
 /// How far each order's prediction of `latest` from `older` (the values before it, most recent
@@ -351,6 +365,8 @@ struct JacobiBlocks {
     key: (f64, f64),
     /// Inverse diagonal blocks, per node.
     blocks: Vec<incise_math::mat3::Mat3>,
+    /// Room for the next rebuild's element sums.
+    scratch: Vec<incise_math::mat3::Mat3>,
 }
 
 /// Which mass matrix an implicit step uses.
@@ -391,6 +407,11 @@ pub struct BackwardEuler {
     /// The block-Jacobi blocks of the lockstep solve, kept between steps (see
     /// [`JACOBI_MAX_AGE`]).
     jacobi: Option<JacobiBlocks>,
+    /// The lockstep solve's vectors, and the step's right-hand side and next starting guess,
+    /// kept between steps (a step allocates nothing once they have their size).
+    lockstep: crate::lockstep_cg::Workspace,
+    rhs: Vec<Vec3>,
+    spare: Vec<Vec3>,
     /// The factor was built for the model before a topology change that kept every node: good
     /// as a preconditioner, but its element map is the old model's, so a refresh rebuilds it.
     pattern_stale: bool,
@@ -420,6 +441,9 @@ impl BackwardEuler {
             since_refresh: Cycle::default(),
             factored_for: None,
             jacobi: None,
+            lockstep: crate::lockstep_cg::Workspace::default(),
+            rhs: Vec::new(),
+            spare: Vec::new(),
             pattern_stale: false,
             factorizations: 0,
         }
@@ -484,7 +508,9 @@ impl BackwardEuler {
         // rhs = h (f_int + f_ext − αM v − (β + h) K v). The lockstep solve forms the element
         // terms itself, in its first pass; the others get them here.
         let lockstep = self.solver == LinearSolver::JacobiCg && self.mass == MassMatrix::Lumped;
-        let mut rhs = vec![[0.0; 3]; n];
+        let mut rhs = std::mem::take(&mut self.rhs);
+        rhs.clear();
+        rhs.resize(n, [0.0; 3]);
         match self.mass {
             MassMatrix::Lumped => update_elements(&mut rhs, |i, r| {
                 loads.add_at(model, i, r);
@@ -512,7 +538,9 @@ impl BackwardEuler {
         // acceleration changes slowly): on B3 at 1 ms the cubic saves half the iterations, to the
         // same tolerance.
         self.history.retain(|d| d.len() == n);
-        let mut dv = starting_guess(&self.history, n);
+        let mut dv = std::mem::take(&mut self.spare);
+        dv.resize(n, [0.0; 3]);
+        starting_guess(&self.history, &mut dv);
         let ffr = &*ff;
         let consistent = self.mass == MassMatrix::Consistent;
         let apply = |p: &[Vec3], out: &mut [Vec3]| {
@@ -535,8 +563,16 @@ impl BackwardEuler {
                         || j.blocks.len() != n
                 });
                 if stale {
-                    let blocks = preconditioner(model, ffr, &model.lumped_mass, a, b);
-                    self.jacobi = Some(JacobiBlocks { used: 0, key: (a, b), blocks });
+                    let mut j = self.jacobi.take().unwrap_or(JacobiBlocks {
+                        used: 0,
+                        key: (a, b),
+                        blocks: Vec::new(),
+                        scratch: Vec::new(),
+                    });
+                    let mass = &model.lumped_mass;
+                    preconditioner_into(model, ffr, mass, (a, b), &mut j.blocks, &mut j.scratch);
+                    (j.used, j.key) = (0, (a, b));
+                    self.jacobi = Some(j);
                 }
                 let jacobi = self.jacobi.as_mut().expect("built above");
                 jacobi.used += 1;
@@ -549,7 +585,7 @@ impl BackwardEuler {
                     h,
                     s: -(beta + h),
                 };
-                crate::lockstep_cg::solve(&system, &rhs, &mut dv, self.cg)
+                crate::lockstep_cg::solve(&system, &rhs, &mut dv, self.cg, &mut self.lockstep)
             }
             LinearSolver::JacobiCg => {
                 let diagonal;
@@ -600,8 +636,12 @@ impl BackwardEuler {
                 state.x[i][k] += h * state.v[i][k];
             }
         }
+        if self.history.len() >= HISTORY {
+            self.spare = self.history.pop().expect("a full history");
+        }
         self.history.truncate(HISTORY - 1);
         self.history.insert(0, dv);
+        self.rhs = rhs;
         report
     }
 }
@@ -763,6 +803,13 @@ mod renewal_tests {
 mod guess_tests {
     use super::*;
 
+    /// [`starting_guess`] for `n` nodes.
+    fn guessed(history: &[Vec<Vec3>], n: usize) -> Vec<Vec3> {
+        let mut guess = vec![[f64::NAN; 3]; n];
+        starting_guess(history, &mut guess);
+        guess
+    }
+
     /// Histories (most recent first) of a two-node field sampled at steps `t = 0, -1, -2, …`.
     fn history(f: impl Fn(f64) -> f64, len: usize) -> Vec<Vec<Vec3>> {
         (0..len)
@@ -776,7 +823,7 @@ mod guess_tests {
     #[test]
     fn a_cubic_motion_is_predicted_exactly() {
         let f = |t: f64| 0.3 + 0.2 * t - 0.05 * t * t + 0.01 * t * t * t;
-        let guess = starting_guess(&history(f, HISTORY), 2);
+        let guess = guessed(&history(f, HISTORY), 2);
         let want = history(|t| f(t + 1.0), 1);
         for (g, w) in guess.iter().zip(&want[0]) {
             for k in 0..3 {
@@ -790,15 +837,15 @@ mod guess_tests {
         // +1, −1, +1, … : every extrapolation of higher order overshoots further.
         let f = |t: f64| if (t as i64) % 2 == 0 { 1.0 } else { -1.0 };
         let h = history(f, HISTORY);
-        assert_eq!(starting_guess(&h, 2), h[0]);
+        assert_eq!(guessed(&h, 2), h[0]);
     }
 
     #[test]
     fn short_histories_use_what_there_is() {
         let f = |t: f64| 1.0 + t;
-        assert_eq!(starting_guess(&[], 2), vec![[0.0; 3]; 2]);
-        assert_eq!(starting_guess(&history(f, 1), 2), history(f, 1)[0]);
+        assert_eq!(guessed(&[], 2), vec![[0.0; 3]; 2]);
+        assert_eq!(guessed(&history(f, 1), 2), history(f, 1)[0]);
         // Two values: linear, before any order could be judged.
-        assert_eq!(starting_guess(&history(f, 2), 2), history(|t| f(t + 1.0), 1)[0]);
+        assert_eq!(guessed(&history(f, 2), 2), history(|t| f(t + 1.0), 1)[0]);
     }
 }

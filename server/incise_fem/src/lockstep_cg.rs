@@ -31,6 +31,7 @@ use std::sync::{Mutex, MutexGuard, RwLock};
 const TEAM_MIN: usize = 128;
 
 /// A node part's vectors (`z` is shared separately: every thread reads all of it).
+#[derive(Default)]
 struct NodePart {
     x: Vec<Vec3>,
     r: Vec<Vec3>,
@@ -65,24 +66,37 @@ pub(crate) struct Rhs<'a> {
     pub s: f64,
 }
 
+/// The solve's vectors, kept between solves: allocating them per step (about 1.4 MB on scene
+/// B3) made the allocator return and re-fault pages every step.
+#[derive(Default)]
+pub(crate) struct Workspace {
+    parts: [Mutex<NodePart>; PARTS],
+    z: [RwLock<Vec<Vec3>>; PARTS],
+    sums: [RwLock<Vec<Vec3>>; PARTS],
+    forces: [RwLock<Vec<Vec3>>; PARTS],
+    /// Each thread's copy of the search direction.
+    directions: [Mutex<Vec<Vec3>>; PARTS],
+}
+
+/// `v` resized to `len` (its contents are overwritten before they are read).
+fn sized(v: &mut Vec<Vec3>, len: usize) {
+    v.resize(len, [0.0; 3]);
+}
+
 /// Solves the system with right-hand side `rhs` for `x`, starting from `x` (warm start); the
 /// same stopping rule and iteration as [`crate::cg::solve`].
-pub(crate) fn solve(sys: &System, rhs: &Rhs, x: &mut [Vec3], settings: CgSettings) -> CgReport {
+pub(crate) fn solve(
+    sys: &System,
+    rhs: &Rhs,
+    x: &mut [Vec3],
+    settings: CgSettings,
+    work: &mut Workspace,
+) -> CgReport {
     let model = sys.model;
-    let nodes = team::split(0..model.node_count(), 1);
+    let n = model.node_count();
+    let nodes = team::split(0..n, 1);
     let elements = team::split(0..model.elements.len(), 2);
     project(sys.fixed, 0, x);
-    let parts: [Mutex<NodePart>; PARTS] = std::array::from_fn(|q| {
-        let range = nodes[q].clone();
-        let zero = vec![[0.0; 3]; range.len()];
-        Mutex::new(NodePart { x: x[range].to_vec(), b: zero.clone(), r: zero.clone(), ap: zero })
-    });
-    let z: [RwLock<Vec<Vec3>>; PARTS] =
-        std::array::from_fn(|q| RwLock::new(vec![[0.0; 3]; nodes[q].len()]));
-    let sums: [RwLock<Vec<Vec3>>; PARTS] =
-        std::array::from_fn(|_| RwLock::new(vec![[0.0; 3]; model.node_count()]));
-    let forces: [RwLock<Vec<Vec3>>; PARTS] =
-        std::array::from_fn(|_| RwLock::new(vec![[0.0; 3]; model.node_count()]));
     let spans: [Range<usize>; PARTS] = std::array::from_fn(|q| {
         let touched = model.elements[elements[q].clone()].iter().flat_map(|e| e.nodes);
         touched
@@ -92,22 +106,45 @@ pub(crate) fn solve(sys: &System, rhs: &Rhs, x: &mut [Vec3], settings: CgSetting
             })
             .unwrap_or(0..0)
     });
+    for q in 0..PARTS {
+        let part = work.parts[q].get_mut().expect("no thread panicked");
+        let range = nodes[q].clone();
+        part.x.clear();
+        part.x.extend_from_slice(&x[range.clone()]);
+        for v in [&mut part.r, &mut part.ap, &mut part.b] {
+            sized(v, range.len());
+        }
+        sized(work.z[q].get_mut().expect("no thread panicked"), range.len());
+        // The element sums are cleared inside their span before every pass; outside it they
+        // must be zero (a kept buffer may hold another model's sums there).
+        for sums in [&mut work.sums[q], &mut work.forces[q]] {
+            let sums = sums.get_mut().expect("no thread panicked");
+            sized(sums, n);
+            sums[..spans[q].start].fill([0.0; 3]);
+            sums[spans[q].end..].fill([0.0; 3]);
+        }
+        let direction = work.directions[q].get_mut().expect("no thread panicked");
+        direction.clear();
+        direction.extend_from_slice(x);
+    }
     let shared = Shared {
         sys,
         nodes: &nodes,
         elements: &elements,
-        parts: &parts,
-        z: &z,
-        sums: &sums,
-        forces: &forces,
+        parts: &work.parts,
+        z: &work.z,
+        sums: &work.sums,
+        forces: &work.forces,
         spans: &spans,
     };
-    let start: &[Vec3] = x;
+    let directions = &work.directions;
     let report = team::run(model.elements.len() >= TEAM_MIN, |m| {
-        shared.iterate(m, rhs, start.to_vec(), settings)
+        // Rank 0 of a one-thread team does both parts with the first copy.
+        let mut p = directions[m.rank()].lock().expect("no thread panicked");
+        shared.iterate(m, rhs, &mut p, settings)
     });
-    for (q, part) in parts.iter().enumerate() {
-        let part = part.lock().expect("no thread panicked");
+    for (q, part) in work.parts.iter_mut().enumerate() {
+        let part = part.get_mut().expect("no thread panicked");
         x[nodes[q].clone()].copy_from_slice(&part.x);
     }
     report
@@ -140,11 +177,11 @@ impl Shared<'_> {
         &self,
         m: &team::Member,
         rhs: &Rhs,
-        mut p: Vec<Vec3>,
+        p: &mut [Vec3],
         settings: CgSettings,
     ) -> CgReport {
         // b and A x.
-        self.apply_step(m, &p, rhs);
+        self.apply_step(m, p, rhs);
         let [bb] = m.sum(|q| {
             let part = self.part(q);
             [dot(&part.b, &part.b)]
@@ -171,7 +208,7 @@ impl Shared<'_> {
         let mut rel = rr.sqrt() / b_norm;
         let mut it = 0;
         while rel > settings.tolerance && it < settings.max_iterations {
-            self.apply(m, &p);
+            self.apply(m, p);
             let [pap] = m.sum(|q| [dot(&p[self.nodes[q].clone()], &self.part(q).ap)]);
             if pap <= 0.0 {
                 break;
@@ -372,7 +409,7 @@ mod tests {
         let sys = System { model: &model, ff: &ff, fixed: &fixed, a, b, pre: &pre };
         let mut lockstep = vec![[0.0; 3]; model.node_count()];
         let step = Rhs { x: &x, v: &v, node: &node, h, s };
-        let rl = solve(&sys, &step, &mut lockstep, settings);
+        let rl = solve(&sys, &step, &mut lockstep, settings, &mut Workspace::default());
         assert!(rs.converged && rl.converged, "{rs:?} {rl:?}");
         assert!(rs.iterations.abs_diff(rl.iterations) <= 1, "{rs:?} {rl:?}");
         let norm = |v: &[Vec3]| v.iter().flatten().map(|c| c * c).sum::<f64>().sqrt();
@@ -386,5 +423,47 @@ mod tests {
         for n in (0..model.node_count()).filter(|&n| fixed.is_fixed(n)) {
             assert!(lockstep[n].iter().all(|c| *c == 0.0), "fixed node {n} moved");
         }
+    }
+
+    /// A workspace kept from a solve on another model (other sizes, other element spans) gives
+    /// the bits a fresh one gives.
+    #[test]
+    fn a_kept_workspace_gives_a_fresh_ones_bits() {
+        let table = MaterialTable::uniform(&[1], Material::new(3e3, 0.45, 1000.0));
+        let solve_on = |cells: [usize; 3], work: &mut Workspace| {
+            let v = from_fn(cells, [0.01; 3], |x, y, _| u16::from(x > 1.5 || y > 2.5));
+            let model = HexModel::from_grid(&BranchedGrid::build(&v, &table, 0).unwrap());
+            let fixed = FixedNodes::plane(&model.rest, 2, 0.0, 1e-9);
+            let x: Vec<Vec3> = model.rest.iter().map(|p| [p[0], p[1], p[2] * 1.05]).collect();
+            let mut ff = HexForceField::new(&model, Formulation::Corotational);
+            ff.update_rotations(&model, &x);
+            let (a, b) = (1.002, 1.1e-5);
+            let pre: Vec<Mat3> = ff
+                .diagonal_blocks(&model)
+                .iter()
+                .zip(&model.lumped_mass)
+                .map(|(k, &m)| {
+                    let mut blk: Mat3 =
+                        std::array::from_fn(|i| std::array::from_fn(|j| b * k[i][j]));
+                    (0..3).for_each(|i| blk[i][i] += a * m);
+                    invert_block(&blk)
+                })
+                .collect();
+            let n = model.node_count();
+            let v = vec![[1e-3, 0.0, -2e-3]; n];
+            let node = vec![[0.0, 0.0, -1e-3]; n];
+            let sys = System { model: &model, ff: &ff, fixed: &fixed, a, b, pre: &pre };
+            let step = Rhs { x: &x, v: &v, node: &node, h: 1e-3, s: -(0.01 + 1e-3) };
+            let mut dv = vec![[0.0; 3]; n];
+            let settings = CgSettings { tolerance: 1e-10, max_iterations: 1000 };
+            solve(&sys, &step, &mut dv, settings, work);
+            dv
+        };
+        let mut kept = Workspace::default();
+        solve_on([12, 9, 6], &mut kept);
+        let reused = solve_on([9, 7, 5], &mut kept);
+        let fresh = solve_on([9, 7, 5], &mut Workspace::default());
+        let bits = |v: &[Vec3]| v.iter().flatten().map(|c| c.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&reused), bits(&fresh));
     }
 }

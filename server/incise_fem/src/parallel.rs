@@ -3,7 +3,7 @@
 
 /// Below this many elements a second thread costs more than it saves (measured: scene B2, 528
 /// elements, is faster on one thread; B3, 3,960, a third faster on two).
-const PARALLEL_MIN: usize = 1_500;
+pub(crate) const PARALLEL_MIN: usize = 1_500;
 
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};

@@ -42,6 +42,11 @@ pub(crate) struct Member<'a> {
 }
 
 impl Member<'_> {
+    /// This thread's index in the team (0 on a team of one).
+    pub(crate) fn rank(&self) -> usize {
+        self.rank
+    }
+
     /// The parts this thread does, in order.
     pub(crate) fn parts(&self) -> Range<usize> {
         if self.team.ranks == 1 { 0..PARTS } else { self.rank..self.rank + 1 }

@@ -2,7 +2,8 @@
 //! and the CG iterations: `cargo run --release -p incise_fem --example profile_block -- 22,15,12 implicit 0.01 50`.
 //! Schemes: `implicit` (Jacobi-CG), `cholesky-cg` (`REFRESH=n` caps the iterations before a
 //! refactorisation), `cholesky`, `explicit`, and `solve-only` (times one factorisation and the
-//! triangular solves; `SINGLE=1` keeps the factor in `f32`).
+//! triangular solves; `SINGLE=1` keeps the factor in `f32`). `ROT=1` also times 1,000 rotation
+//! updates, each after a small turn of the whole block.
 
 use incise_fem::cg::CgSettings;
 use incise_fem::integrate::{BackwardEuler, LinearSolver, Loads, Rayleigh, State, explicit_step};
@@ -90,6 +91,22 @@ fn main() {
         }
     }
     let s = start.elapsed().as_secs_f64();
+    if std::env::var("ROT").is_ok() {
+        let mut x = state.x.clone();
+        let t = std::time::Instant::now();
+        for i in 0..1000 {
+            let a = 1e-5 * (i as f64).sin();
+            for p in &mut x {
+                p[0] += a * p[1];
+                p[1] -= a * p[0];
+            }
+            ff.update_rotations(&model, &x);
+        }
+        println!(
+            "update_rotations with a small turn each call: {:.1} µs",
+            t.elapsed().as_secs_f64() * 1e3
+        );
+    }
 
     println!(
         "{} elements, {scheme}, dt {dt}: {:.3} ms/step, {:.1} steps/s, {:.1} CG iterations/step, {} factorisations",

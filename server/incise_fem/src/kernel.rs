@@ -80,13 +80,16 @@ pub(crate) fn to_global(wide: Wide, r: &Mat3, scale: f64, l: &Local) -> Local {
 fn rotate(wide: Wide, m: &Mat3, v: &Local) -> Local {
     #[cfg(target_arch = "x86_64")]
     if let Some(simd) = wide.0 {
+        // Plain loops, not `array::from_fn`: a closure the compiler declines to inline runs
+        // without the target features, and its intrinsics then become calls.
         let v: [pulp::f64x4; 6] = pulp::cast(*v);
-        let out: [pulp::f64x4; 6] = std::array::from_fn(|k| {
+        let mut out = [simd.splat_f64x4(0.0); 6];
+        for (k, o) in out.iter_mut().enumerate() {
             let (i, half) = (k / 2, k % 2);
             let first = simd.mul_f64x4(simd.splat_f64x4(m[i][0]), v[half]);
             let second = simd.mul_add_f64x4(simd.splat_f64x4(m[i][1]), v[2 + half], first);
-            simd.mul_add_f64x4(simd.splat_f64x4(m[i][2]), v[4 + half], second)
-        });
+            *o = simd.mul_add_f64x4(simd.splat_f64x4(m[i][2]), v[4 + half], second);
+        }
         return pulp::cast(out);
     }
     #[cfg(not(target_arch = "x86_64"))]
@@ -95,6 +98,149 @@ fn rotate(wide: Wide, m: &Mat3, v: &Local) -> Local {
         let (i, c) = (k / 8, k % 8);
         m[i][2].mul_add(v[16 + c], m[i][1].mul_add(v[8 + c], m[i][0] * v[c]))
     })
+}
+
+/// Four `f64` lanes in one AVX register, for code generic over [`Lane`] (element rotations): every
+/// operation is the scalar one lane by lane, so a lane has the scalar code's bits.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Avx4 {
+    simd: pulp::x86::V3,
+    v: pulp::f64x4,
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx4 {
+    // Inlined into the feature-enabled loops, or the intrinsics become calls.
+    #![allow(clippy::inline_always)]
+
+    use super::Avx4;
+    use incise_math::lanes::{Lane, Lane4};
+    use pulp::m64x4;
+    use std::ops::{Add, Div, Mul, Neg, Sub};
+
+    macro_rules! binary {
+        ($trait:ident, $method:ident, $simd:ident) => {
+            impl $trait for Avx4 {
+                type Output = Self;
+                #[inline(always)]
+                fn $method(self, other: Self) -> Self {
+                    Self { simd: self.simd, v: self.simd.$simd(self.v, other.v) }
+                }
+            }
+        };
+    }
+    binary!(Add, add, add_f64x4);
+    binary!(Sub, sub, sub_f64x4);
+    binary!(Mul, mul, mul_f64x4);
+    binary!(Div, div, div_f64x4);
+
+    impl Neg for Avx4 {
+        type Output = Self;
+        #[inline(always)]
+        fn neg(self) -> Self {
+            let zero = self.simd.splat_f64x4(-0.0);
+            Self { simd: self.simd, v: self.simd.sub_f64x4(zero, self.v) }
+        }
+    }
+
+    /// A lane mask with its token.
+    #[derive(Clone, Copy)]
+    pub(crate) struct Mask {
+        simd: pulp::x86::V3,
+        m: m64x4,
+    }
+
+    impl std::ops::BitAnd for Mask {
+        type Output = Self;
+        #[inline(always)]
+        fn bitand(self, other: Self) -> Self {
+            Self { simd: self.simd, m: self.simd.and_m64x4(self.m, other.m) }
+        }
+    }
+
+    impl std::ops::BitOr for Mask {
+        type Output = Self;
+        #[inline(always)]
+        fn bitor(self, other: Self) -> Self {
+            Self { simd: self.simd, m: self.simd.or_m64x4(self.m, other.m) }
+        }
+    }
+
+    impl std::ops::Not for Mask {
+        type Output = Self;
+        #[inline(always)]
+        fn not(self) -> Self {
+            Self { simd: self.simd, m: self.simd.not_m64x4(self.m) }
+        }
+    }
+
+    impl Lane for Avx4 {
+        type Mask = Mask;
+
+        #[inline(always)]
+        fn constant(self, v: f64) -> Self {
+            Self { simd: self.simd, v: self.simd.splat_f64x4(v) }
+        }
+        #[inline(always)]
+        fn abs(self) -> Self {
+            Self { simd: self.simd, v: self.simd.abs_f64x4(self.v) }
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            Self { simd: self.simd, v: self.simd.sqrt_f64x4(self.v) }
+        }
+        #[inline(always)]
+        fn lt(self, other: Self) -> Mask {
+            Mask { simd: self.simd, m: self.simd.cmp_lt_f64x4(self.v, other.v) }
+        }
+        #[inline(always)]
+        fn le(self, other: Self) -> Mask {
+            Mask { simd: self.simd, m: self.simd.cmp_le_f64x4(self.v, other.v) }
+        }
+        #[inline(always)]
+        fn gt(self, other: Self) -> Mask {
+            Mask { simd: self.simd, m: self.simd.cmp_gt_f64x4(self.v, other.v) }
+        }
+        #[inline(always)]
+        fn select(mask: Mask, if_true: Self, if_false: Self) -> Self {
+            Self { simd: mask.simd, v: mask.simd.select_f64x4(mask.m, if_true.v, if_false.v) }
+        }
+    }
+
+    impl Lane4 for Avx4 {
+        #[inline(always)]
+        fn from_lanes(like: Self, lanes: [f64; 4]) -> Self {
+            Self { simd: like.simd, v: pulp::cast(lanes) }
+        }
+        #[inline(always)]
+        fn lanes(self) -> [f64; 4] {
+            pulp::cast(self.v)
+        }
+        #[inline(always)]
+        fn mask_lanes(mask: Mask) -> [bool; 4] {
+            let bits: [u64; 4] = pulp::cast(mask.m);
+            bits.map(|b| b != 0)
+        }
+        #[inline(always)]
+        fn mask_from_lanes(like: Self, lanes: [bool; 4]) -> Mask {
+            let bits: [u64; 4] = lanes.map(|b| if b { u64::MAX } else { 0 });
+            Mask { simd: like.simd, m: pulp::cast(bits) }
+        }
+    }
+}
+
+impl Wide {
+    /// The four-lane type for lane-generic code, where AVX2 is present.
+    #[allow(clippy::inline_always)]
+    #[inline(always)]
+    pub(crate) fn lanes(self) -> Option<Avx4> {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(simd) = self.0 {
+            return Some(Avx4 { simd, v: simd.splat_f64x4(0.0) });
+        }
+        None
+    }
 }
 
 /// Whether the element passes may use AVX2 with FMA, and the token that lets them.
@@ -191,5 +337,44 @@ mod tests {
         let scalar = to_global(Wide::SCALAR, &r, -0.7, &to_local(Wide::SCALAR, &r, &g));
         let wide = vectorized(|wide| to_global(wide, &r, -0.7, &to_local(wide, &r, &g)));
         assert_eq!(scalar.map(f64::to_bits), wide.map(f64::to_bits));
+    }
+
+    /// On AVX2 lanes, each element's rotation has the bits the scalar solver gives it (the
+    /// lanes' grouping, which follows the thread count's split, cannot change a frame).
+    #[test]
+    fn rotations_on_avx_lanes_have_the_scalar_bits() {
+        use incise_math::lanes::Lane4;
+        use incise_math::mat3::{axis_angle, mul};
+        use incise_math::rotation::{Quat, nearest, nearest4};
+        let s = [[1.05, 0.02, -0.01], [0.02, 0.97, 0.015], [-0.01, 0.015, 1.02]];
+        let a = [
+            mul(&axis_angle(&[0.36, -0.48, 0.8], 0.9), &s),
+            mul(&axis_angle(&[0.0, 0.0, 1.0], 2.5), &s),
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -0.5]],
+            axis_angle(&[0.0, 1.0, 0.0], std::f64::consts::PI),
+        ];
+        let warm = [
+            Quat::from_axis_angle(&[0.36, -0.48, 0.8], 0.88),
+            Quat::IDENTITY,
+            Quat::from_axis_angle(&[1.0, 0.0, 0.0], 0.1),
+            Quat::IDENTITY,
+        ];
+        vectorized(|wide| {
+            let Some(like) = wide.lanes() else { return };
+            let lanes = std::array::from_fn(|i| {
+                std::array::from_fn(|j| Lane4::from_lanes(like, a.map(|m| m[i][j])))
+            });
+            let mut q4 = warm;
+            let four = nearest4(&lanes, &mut q4, 100);
+            for l in 0..4 {
+                let mut q = warm[l];
+                let one = nearest(&a[l], &mut q, 100);
+                assert_eq!(
+                    four[l].matrix.map(|r| r.map(f64::to_bits)),
+                    one.matrix.map(|r| r.map(f64::to_bits))
+                );
+                assert_eq!((four[l].iterations, q4[l]), (one.iterations, q), "lane {l}");
+            }
+        });
     }
 }

@@ -3,6 +3,7 @@
 //!
 //! Everything here is pure and allocation-free so it can sit under every other crate.
 
+pub mod lanes;
 pub mod mat3;
 pub mod morton;
 pub mod rotation;

@@ -16,7 +16,7 @@
 //! step's rotation, two or three iterations. Elsewhere (far away, saddles, inversions) Müller's
 //! step keeps the method's robustness.
 
-use crate::Vec3;
+use crate::lanes::{Lane, Lane4};
 use crate::mat3::{Mat3, dot};
 
 /// A unit quaternion `w + xi + yj + zk`, the state carried between steps.
@@ -96,78 +96,235 @@ pub fn extract_rotation(a: &Mat3, q: &mut Quat, max_iterations: usize) -> usize 
 
 /// [`extract_rotation`], returning what the last iteration computed too.
 pub fn refine(a: &Mat3, q: &mut Quat, max_iterations: usize) -> Refined {
+    let mut current = Quaternion { w: q.w, v: q.v };
+    let mut r = matrix_of(&current);
     for it in 0..max_iterations {
-        if let Some((matrix, alignment)) = iterate(a, q) {
-            return Refined { iterations: it, matrix, alignment };
+        let step = iterate(a, &current, &r);
+        if step.converged {
+            return Refined { iterations: it, matrix: r, alignment: step.alignment };
+        }
+        (current, r) = (step.next, step.next_matrix);
+        *q = Quat { w: current.w, v: current.v };
+        if step.accepted {
+            return Refined { iterations: it, matrix: r, alignment: step.next_alignment };
         }
     }
-    Refined { iterations: max_iterations, matrix: q.to_matrix(), alignment: alignment(a, q) }
+    Refined { iterations: max_iterations, matrix: r, alignment: alignment(a, q) }
 }
 
-/// One iteration of [`refine`]: turns `q` towards the maximiser of `tr(Rᵀa)`, or returns its
-/// matrix and `tr(Rᵀa)` when the turn would be negligible (converged; `q` unchanged).
-#[inline]
-fn iterate(a: &Mat3, q: &mut Quat) -> Option<(Mat3, f64)> {
-    let r = q.to_matrix();
+/// [`nearest`] for four matrices at once (`a`, lane `l` the `l`-th matrix), each lane with
+/// exactly the bits [`nearest`] gives it: the iterations run on the lanes of `W` (vector
+/// instructions), and the rare lane that needs more than [`refine`] (a half-turn restart) is
+/// redone alone from its warm start.
+#[allow(clippy::inline_always)] // inlined into callers compiled for wider vector instructions
+#[inline(always)]
+pub fn nearest4<W: Lane4>(a: &Matrix<W>, q: &mut [Quat; 4], max_iterations: usize) -> [Refined; 4] {
+    let like = a[0][0];
+    let wide = |v: [f64; 4]| W::from_lanes(like, v);
+    let lane = |m: &Matrix<W>, l: usize| -> Mat3 { m.map(|row| row.map(|x| x.lanes()[l])) };
+    let mut current = Quaternion {
+        w: wide(q.map(|q| q.w)),
+        v: [wide(q.map(|q| q.v[0])), wide(q.map(|q| q.v[1])), wide(q.map(|q| q.v[2]))],
+    };
+    let mut r = matrix_of(&current);
+    let mut done: [Option<Refined>; 4] = [None; 4];
+    for it in 0..max_iterations {
+        let step = iterate(a, &current, &r);
+        let converged = W::mask_lanes(step.converged);
+        let alignment = step.alignment.lanes();
+        for l in 0..4 {
+            if done[l].is_none() && converged[l] {
+                let matrix = lane(&r, l);
+                done[l] = Some(Refined { iterations: it, matrix, alignment: alignment[l] });
+            }
+        }
+        // Lanes that finished keep their rotation; the others take the turn.
+        let moving = W::mask_from_lanes(like, done.map(|d| d.is_none()));
+        let pick = |old: W, new: W| W::select(moving, new, old);
+        current = Quaternion {
+            w: pick(current.w, step.next.w),
+            v: [
+                pick(current.v[0], step.next.v[0]),
+                pick(current.v[1], step.next.v[1]),
+                pick(current.v[2], step.next.v[2]),
+            ],
+        };
+        for (row, next) in r.iter_mut().zip(&step.next_matrix) {
+            for (x, n) in row.iter_mut().zip(next) {
+                *x = pick(*x, *n);
+            }
+        }
+        let accepted = W::mask_lanes(step.accepted & moving);
+        let next_alignment = step.next_alignment.lanes();
+        for l in 0..4 {
+            if accepted[l] {
+                let matrix = lane(&r, l);
+                done[l] = Some(Refined { iterations: it, matrix, alignment: next_alignment[l] });
+            }
+        }
+        if done.iter().all(Option::is_some) {
+            break;
+        }
+    }
+    let (w, v) = (current.w.lanes(), current.v.map(W::lanes));
+    std::array::from_fn(|l| match done[l] {
+        Some(first) if first.alignment >= 0.0 => {
+            q[l] = Quat { w: w[l], v: v.map(|c| c[l]) };
+            first
+        }
+        // Not converged, or on a saddle: what [`nearest`] does from the warm start.
+        _ => nearest(&lane(a, l), &mut q[l], max_iterations),
+    })
+}
+
+/// A 3×3 matrix of lane values.
+pub type Matrix<T> = [[T; 3]; 3];
+
+/// A quaternion of lane values (see [`Quat`]).
+#[derive(Clone, Copy)]
+struct Quaternion<T> {
+    w: T,
+    v: [T; 3],
+}
+
+/// What one iteration found: at the current rotation, and after its turn.
+struct Iteration<T: Lane> {
+    /// The turn would be negligible: the current rotation is the answer.
+    converged: T::Mask,
+    /// `tr(Rᵀa)` at the current rotation.
+    alignment: T,
+    /// The rotation after the turn.
+    next: Quaternion<T>,
+    /// The rotation after the turn, as a matrix.
+    next_matrix: Matrix<T>,
+    /// A Newton turn under 1e-6 rad: its result is the answer (its error, of order |θ|², is
+    /// below what `converged` accepts), without an iteration that would only confirm it.
+    accepted: T::Mask,
+    /// `tr(Rᵀa)` after the turn.
+    next_alignment: T,
+}
+
+/// The rotation matrix of a unit quaternion.
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn matrix_of<T: Lane>(q: &Quaternion<T>) -> Matrix<T> {
+    let (w, [x, y, z]) = (q.w, q.v);
+    let (one, two) = (w.constant(1.0), w.constant(2.0));
+    [
+        [one - two * (y * y + z * z), two * (x * y - w * z), two * (x * z + w * y)],
+        [two * (x * y + w * z), one - two * (x * x + z * z), two * (y * z - w * x)],
+        [two * (x * z - w * y), two * (y * z + w * x), one - two * (x * x + y * y)],
+    ]
+}
+
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn dot3<T: Lane>(a: &[T; 3], b: &[T; 3]) -> T {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// One iteration from the rotation `q` (with matrix `r`) towards the maximiser of `tr(Rᵀa)`.
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn iterate<T: Lane>(a: &Matrix<T>, q: &Quaternion<T>, r: &Matrix<T>) -> Iteration<T> {
     // B = Rᵀa. Turning R by a small θ in its own frame, R' = R·exp([θ]×), changes tr(R'ᵀa)
     // by gᵀθ − ½ θᵀHθ with g = axial(B − Bᵀ) and H = tr(B)·I − sym(B).
-    let b: Mat3 = std::array::from_fn(|i| {
+    let b: Matrix<T> = std::array::from_fn(|i| {
         std::array::from_fn(|j| r[0][i] * a[0][j] + r[1][i] * a[1][j] + r[2][i] * a[2][j])
     });
     let g = [b[2][1] - b[1][2], b[0][2] - b[2][0], b[1][0] - b[0][1]];
     let t = b[0][0] + b[1][1] + b[2][2];
-    let h: Mat3 = std::array::from_fn(|i| {
+    let h: Matrix<T> = std::array::from_fn(|i| {
         std::array::from_fn(|j| {
-            let s = -0.5 * (b[i][j] + b[j][i]);
+            let s = t.constant(-0.5) * (b[i][j] + b[j][i]);
             if i == j { s + t } else { s }
         })
     });
-    let newton = newton_step(&h, &g);
+    let (newton, trusted) = newton_step(&h, &g);
     // Müller et al.'s step: H replaced by |tr B|·I, safe far from the maximum (and for inverted
     // elements), but only linearly convergent (about a factor 3 per iteration).
-    let theta = newton.unwrap_or_else(|| {
-        let inv = 1.0 / (t.abs() + 1e-9);
-        [g[0] * inv, g[1] * inv, g[2] * inv]
-    });
-    let size = dot(&theta, &theta);
-    if size < 1e-24 {
-        return Some((r, t));
-    }
+    let inv = t.constant(1.0) / (t.abs() + t.constant(1e-9));
+    let theta: [T; 3] = std::array::from_fn(|k| T::select(trusted, newton[k], g[k] * inv));
+    let size = dot3(&theta, &theta);
     // The turn by θ is taken as the unnormalised quaternion (1, θ/2): the same axis and an
     // angle 2·atan(|θ|/2) ≈ |θ| as θ → 0, so the fixed point (θ = 0) is the same, a step never
     // exceeds half a turn, and no sin/cos is evaluated (this runs per element per step).
-    let step = Quat { w: 1.0, v: [0.5 * theta[0], 0.5 * theta[1], 0.5 * theta[2]] };
-    *q = q.mul(&step).normalized();
-    // A Newton step of |θ| < 1e-6 leaves an error of order |θ|² < 1e-12, what the test above
-    // accepts: the iteration that would only confirm it is skipped (warm-started at 1 ms, it
-    // was every element's last).
-    if newton.is_some() && size < 1e-12 {
-        return Some((q.to_matrix(), alignment(a, q)));
+    let half = t.constant(0.5);
+    let turned = product(q, &Quaternion { w: t.constant(1.0), v: theta.map(|c| half * c) });
+    let next = normalized(&turned);
+    let next_matrix = matrix_of(&next);
+    Iteration {
+        converged: size.lt(t.constant(1e-24)),
+        alignment: t,
+        next,
+        next_matrix,
+        accepted: trusted & size.lt(t.constant(1e-12)),
+        next_alignment: trace_product(&next_matrix, a),
     }
-    None
 }
 
-/// The Newton step `H⁻¹g` when `H` is clearly positive definite (near the maximum, where it
-/// converges quadratically: two or three iterations from the previous step's rotation), else
-/// `None`. Steps over a radian are refused too: the quadratic model is not trusted that far.
-fn newton_step(h: &Mat3, g: &Vec3) -> Option<Vec3> {
+/// `tr(rᵀa)`.
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn trace_product<T: Lane>(r: &Matrix<T>, a: &Matrix<T>) -> T {
+    let mut sum = r[0][0] * a[0][0];
+    for (k, c) in [(1, 0), (2, 0), (0, 1), (1, 1), (2, 1), (0, 2), (1, 2), (2, 2)] {
+        sum = sum + r[k][c] * a[k][c];
+    }
+    sum
+}
+
+/// `a · b` (apply `b` first).
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn product<T: Lane>(a: &Quaternion<T>, b: &Quaternion<T>) -> Quaternion<T> {
+    Quaternion {
+        w: a.w * b.w - dot3(&a.v, &b.v),
+        v: [
+            a.w * b.v[0] + b.w * a.v[0] + a.v[1] * b.v[2] - a.v[2] * b.v[1],
+            a.w * b.v[1] + b.w * a.v[1] + a.v[2] * b.v[0] - a.v[0] * b.v[2],
+            a.w * b.v[2] + b.w * a.v[2] + a.v[0] * b.v[1] - a.v[1] * b.v[0],
+        ],
+    }
+}
+
+/// `q` with unit norm (the identity for a zero quaternion).
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn normalized<T: Lane>(q: &Quaternion<T>) -> Quaternion<T> {
+    let n = (q.w * q.w + dot3(&q.v, &q.v)).sqrt();
+    let positive = n.gt(n.constant(0.0));
+    Quaternion {
+        w: T::select(positive, q.w / n, n.constant(1.0)),
+        v: q.v.map(|c| T::select(positive, c / n, n.constant(0.0))),
+    }
+}
+
+/// The Newton step `H⁻¹g`, and where it is trusted: where `H` is clearly positive definite (near
+/// the maximum, where it converges quadratically: two or three iterations from the previous
+/// step's rotation) and the step is under a radian (the quadratic model is not trusted further).
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn newton_step<T: Lane>(h: &Matrix<T>, g: &[T; 3]) -> ([T; 3], T::Mask) {
     let scale = h[0][0].abs() + h[1][1].abs() + h[2][2].abs();
     let m1 = h[0][0];
     let m2 = h[0][0] * h[1][1] - h[0][1] * h[1][0];
-    let d = crate::mat3::det(h);
-    let eps = 1e-6 * scale;
-    if !(m1 > eps && m2 > eps * scale && d > eps * scale * scale) {
-        return None;
-    }
-    let inv = 1.0 / d;
+    let d = h[0][0] * (h[1][1] * h[2][2] - h[1][2] * h[2][1])
+        - h[0][1] * (h[1][0] * h[2][2] - h[1][2] * h[2][0])
+        + h[0][2] * (h[1][0] * h[2][1] - h[1][1] * h[2][0]);
+    let eps = scale.constant(1e-6) * scale;
+    let definite = m1.gt(eps) & m2.gt(eps * scale) & d.gt(eps * scale * scale);
+    let inv = scale.constant(1.0) / d;
     let cof = |i: usize, j: usize| {
         let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
         let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
         h[i1][j1] * h[i2][j2] - h[i1][j2] * h[i2][j1]
     };
     // H is symmetric, so its inverse is the cofactor matrix over the determinant.
-    let theta: Vec3 = std::array::from_fn(|i| (0..3).map(|j| cof(i, j) * g[j]).sum::<f64>() * inv);
-    (dot(&theta, &theta) <= 1.0).then_some(theta)
+    let theta: [T; 3] =
+        std::array::from_fn(|i| (cof(i, 0) * g[0] + cof(i, 1) * g[1] + cof(i, 2) * g[2]) * inv);
+    let short = dot3(&theta, &theta).le(scale.constant(1.0));
+    (theta, definite & short)
 }
 
 /// `tr(Rᵀa)` for the rotation `q`: what [`extract_rotation`] maximises.
@@ -208,6 +365,7 @@ pub fn nearest(a: &Mat3, q: &mut Quat, max_iterations: usize) -> Refined {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lanes::F64x4;
     use crate::mat3::{IDENTITY, axis_angle, det, mul, transpose};
 
     fn close(a: &Mat3, b: &Mat3, tol: f64) -> bool {
@@ -236,6 +394,44 @@ mod tests {
             assert!(close(&refined.matrix, &r, 1e-11), "turn {turn}: {:?}", refined.matrix);
             assert!(close(&q.to_matrix(), &refined.matrix, 0.0));
             assert!(refined.iterations <= 2, "turn {turn}: {refined:?}");
+        }
+    }
+
+    /// Four matrices to refine at once, and their warm starts: a nearby warm start, a lane that
+    /// needs Müller's steps, an inverted element, and a half-turn saddle.
+    fn four_cases() -> ([Mat3; 4], [Quat; 4]) {
+        let s = [[1.05, 0.02, -0.01], [0.02, 0.97, 0.015], [-0.01, 0.015, 1.02]];
+        let a = [
+            mul(&axis_angle(&[0.36, -0.48, 0.8], 0.9), &s),
+            mul(&axis_angle(&[0.0, 0.0, 1.0], 2.5), &s),
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -0.5]],
+            axis_angle(&[0.0, 1.0, 0.0], std::f64::consts::PI),
+        ];
+        let warm = [
+            Quat::from_axis_angle(&[0.36, -0.48, 0.8], 0.88),
+            Quat::IDENTITY,
+            Quat::from_axis_angle(&[1.0, 0.0, 0.0], 0.1),
+            Quat::IDENTITY,
+        ];
+        (a, warm)
+    }
+
+    /// Each lane of [`nearest4`] has the bits [`nearest`] gives it alone.
+    #[test]
+    fn four_lanes_give_the_single_bits() {
+        let (a, warm) = four_cases();
+        let mut q4 = warm;
+        let lanes: Matrix<F64x4> =
+            std::array::from_fn(|i| std::array::from_fn(|j| F64x4(a.map(|m| m[i][j]))));
+        let wide = nearest4(&lanes, &mut q4, 100);
+        for l in 0..4 {
+            let mut q = warm[l];
+            let single = nearest(&a[l], &mut q, 100);
+            let bits = |m: &Mat3| m.map(|row| row.map(f64::to_bits));
+            assert_eq!(bits(&wide[l].matrix), bits(&single.matrix), "lane {l}");
+            assert_eq!(wide[l].alignment.to_bits(), single.alignment.to_bits(), "lane {l}");
+            assert_eq!(wide[l].iterations, single.iterations, "lane {l}");
+            assert_eq!(q4[l], q, "lane {l}");
         }
     }
 

@@ -122,7 +122,7 @@ fn norm(v: &[Vec3]) -> f64 {
 }
 
 /// Block-Jacobi preconditioner of `a·M + b·K`.
-fn preconditioner(
+pub(crate) fn preconditioner(
     model: &HexModel,
     ff: &HexForceField,
     mass: &[f64],

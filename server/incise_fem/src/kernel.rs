@@ -344,21 +344,20 @@ mod tests {
     #[test]
     fn rotations_on_avx_lanes_have_the_scalar_bits() {
         use incise_math::lanes::Lane4;
-        use incise_math::mat3::{axis_angle, mul};
+        use incise_math::mat3::{Mat3, axis_angle, mul};
         use incise_math::rotation::{Quat, nearest, nearest4};
-        let s = [[1.05, 0.02, -0.01], [0.02, 0.97, 0.015], [-0.01, 0.015, 1.02]];
-        let a = [
-            mul(&axis_angle(&[0.36, -0.48, 0.8], 0.9), &s),
-            mul(&axis_angle(&[0.0, 0.0, 1.0], 2.5), &s),
-            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -0.5]],
-            axis_angle(&[0.0, 1.0, 0.0], std::f64::consts::PI),
-        ];
-        let warm = [
-            Quat::from_axis_angle(&[0.36, -0.48, 0.8], 0.88),
-            Quat::IDENTITY,
-            Quat::from_axis_angle(&[1.0, 0.0, 0.0], 0.1),
-            Quat::IDENTITY,
-        ];
+        // Stretched rotations warm-started nearby or far away, and an inverted element.
+        let a: [Mat3; 4] = std::array::from_fn(|l| {
+            let stretch = 1.0 + 0.03 * l as f64;
+            let r = axis_angle(&[0.6, 0.0, 0.8], 0.7 * l as f64);
+            let mut m = mul(&r, &[[stretch, 0.01, 0.0], [0.01, 0.98, 0.02], [0.0, 0.02, 1.0]]);
+            if l == 3 {
+                m[2] = m[2].map(|c| -0.5 * c);
+            }
+            m
+        });
+        let warm: [Quat; 4] =
+            std::array::from_fn(|l| Quat::from_axis_angle(&[0.0, 0.6, 0.8], 0.05 + 1.4 * l as f64));
         vectorized(|wide| {
             let Some(like) = wide.lanes() else { return };
             let lanes = std::array::from_fn(|i| {

@@ -342,7 +342,7 @@ fn project(fixed: &FixedNodes, start: usize, v: &mut [Vec3]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cg::{block_jacobi, invert_block};
+    use crate::cg::block_jacobi;
     use crate::hex_force::Formulation;
     use incise_grid::procedural::from_fn;
     use incise_grid::{BranchedGrid, Material, MaterialTable};
@@ -372,16 +372,7 @@ mod tests {
         let mut ff = HexForceField::new(&model, Formulation::Corotational);
         ff.update_rotations(&model, &x);
         let (a, b) = (1.002, 1.1e-5);
-        let pre: Vec<Mat3> = ff
-            .diagonal_blocks(&model)
-            .iter()
-            .zip(&model.lumped_mass)
-            .map(|(k, &m)| {
-                let mut blk: Mat3 = std::array::from_fn(|i| std::array::from_fn(|j| b * k[i][j]));
-                (0..3).for_each(|i| blk[i][i] += a * m);
-                invert_block(&blk)
-            })
-            .collect();
+        let pre = crate::integrate::preconditioner(&model, &ff, &model.lumped_mass, a, b);
         // A step's right-hand side: positions `x`, some velocities and node terms. The serial
         // solver gets it assembled as the integrator did before; the lockstep one forms it.
         let wave = |i: usize, scale: f64| -> Vec3 {
@@ -438,17 +429,7 @@ mod tests {
             let mut ff = HexForceField::new(&model, Formulation::Corotational);
             ff.update_rotations(&model, &x);
             let (a, b) = (1.002, 1.1e-5);
-            let pre: Vec<Mat3> = ff
-                .diagonal_blocks(&model)
-                .iter()
-                .zip(&model.lumped_mass)
-                .map(|(k, &m)| {
-                    let mut blk: Mat3 =
-                        std::array::from_fn(|i| std::array::from_fn(|j| b * k[i][j]));
-                    (0..3).for_each(|i| blk[i][i] += a * m);
-                    invert_block(&blk)
-                })
-                .collect();
+            let pre = crate::integrate::preconditioner(&model, &ff, &model.lumped_mass, a, b);
             let n = model.node_count();
             let v = vec![[1e-3, 0.0, -2e-3]; n];
             let node = vec![[0.0, 0.0, -1e-3]; n];

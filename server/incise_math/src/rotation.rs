@@ -35,26 +35,14 @@ impl Quat {
     /// The rotation matrix.
     #[must_use]
     pub fn to_matrix(&self) -> Mat3 {
-        let (w, [x, y, z]) = (self.w, self.v);
-        [
-            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-            [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-            [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-        ]
+        matrix_of(&Quaternion { w: self.w, v: self.v })
     }
 
     /// `self · other` (apply `other` first).
     #[must_use]
     pub fn mul(&self, o: &Self) -> Self {
-        let (a, b) = (self, o);
-        Self {
-            w: a.w * b.w - dot(&a.v, &b.v),
-            v: [
-                a.w * b.v[0] + b.w * a.v[0] + a.v[1] * b.v[2] - a.v[2] * b.v[1],
-                a.w * b.v[1] + b.w * a.v[1] + a.v[2] * b.v[0] - a.v[0] * b.v[2],
-                a.w * b.v[2] + b.w * a.v[2] + a.v[0] * b.v[1] - a.v[1] * b.v[0],
-            ],
-        }
+        let p = product(&Quaternion { w: self.w, v: self.v }, &Quaternion { w: o.w, v: o.v });
+        Self { w: p.w, v: p.v }
     }
 
     /// Rotation by `angle` about the unit `axis`.

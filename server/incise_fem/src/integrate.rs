@@ -310,7 +310,7 @@ fn starting_guess(history: &[Vec<Vec3>], guess: &mut [Vec3]) {
             std::array::from_fn(|j| older.get(j).map_or(&zeros[..], |v| v.as_flattened()));
         let latest = latest.as_flattened();
         let (first, second) = join_if(
-            n >= PARALLEL_NODES,
+            n >= crate::parallel::PARALLEL_MIN,
             || misses(&latest[..half], &olders.map(|o| &o[..half])),
             || misses(&latest[half..], &olders.map(|o| &o[half..])),
         );
@@ -319,8 +319,10 @@ fn starting_guess(history: &[Vec<Vec3>], guess: &mut [Vec3]) {
     };
     let order = order.min(history.len() - 1);
     update_runs(guess.as_flattened_mut(), |start, run| {
-        let values: Vec<&[f64]> =
-            history.iter().map(|h| &h.as_flattened()[start..start + run.len()]).collect();
+        // The order's weights are at most as many as the history's entries.
+        let values: [&[f64]; HISTORY] = std::array::from_fn(|j| {
+            history.get(j).map_or(&[][..], |h| &h.as_flattened()[start..start + run.len()])
+        });
         for (g, i) in run.iter_mut().zip(0..) {
             *g = WEIGHTS[order].iter().zip(&values).fold(0.0, |acc, (w, v)| acc + w * v[i]);
         }
@@ -345,9 +347,6 @@ fn misses(latest: &[f64], older: &[&[f64]; MAX_ORDER + 1]) -> [f64; MAX_ORDER + 
     }
     lanes.map(|l| ((l[0] + l[1]) + l[2]) + l[3])
 }
-
-/// Nodes from which the per-node passes of a step run on two threads.
-const PARALLEL_NODES: usize = 1_500;
 
 /// How long (simulated seconds) block-Jacobi blocks serve before they are rebuilt with the
 /// current rotations. Any symmetric positive definite blocks precondition correctly (CG stops at

@@ -1,8 +1,9 @@
 //! Element loops on both cores with a fixed partition: each element's result is computed by
 //! exactly one thread and returned in element order, so nothing depends on the thread count.
 
-/// Below this many elements a second thread costs more than it saves (measured: scene B2, 528
-/// elements, is faster on one thread; B3, 3,960, a third faster on two).
+/// Below this many elements (or nodes, for the per-node passes) a second thread costs more than
+/// it saves (measured: scene B2, 528 elements, is faster on one thread; B3, 3,960, a third faster
+/// on two).
 pub(crate) const PARALLEL_MIN: usize = 1_500;
 
 use std::sync::OnceLock;
@@ -107,14 +108,23 @@ impl Pending {
 
     /// Spins, then yields, until every job handed over has finished.
     pub(crate) fn wait(&self) {
-        let mut spins = 0u32;
-        while self.0.load(Ordering::Acquire) > 0 {
-            if spins < 20_000 {
-                spins += 1;
-                std::hint::spin_loop();
-            } else {
-                std::thread::yield_now();
-            }
+        wait_until(|| self.0.load(Ordering::Acquire) == 0);
+    }
+}
+
+/// Spins before a waiting thread starts yielding its core (the thread it waits for may have
+/// been descheduled, or not have started yet).
+const SPINS_BEFORE_YIELD: u32 = 20_000;
+
+/// Spins, then yields, until `done()`: a wait without a sleep and its wake-up.
+pub(crate) fn wait_until(done: impl Fn() -> bool) {
+    let mut spins = 0u32;
+    while !done() {
+        if spins < SPINS_BEFORE_YIELD {
+            spins += 1;
+            std::hint::spin_loop();
+        } else {
+            std::thread::yield_now();
         }
     }
 }

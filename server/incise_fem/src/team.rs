@@ -17,10 +17,6 @@ pub(crate) const PARTS: usize = 2;
 /// Values one [`Member::sum`] can reduce at once.
 const MAX_VALUES: usize = 3;
 
-/// Spins before a waiting thread starts yielding its core (the partner may have been
-/// descheduled, or not have started yet).
-const SPINS_BEFORE_YIELD: u32 = 20_000;
-
 /// The shared state of a team.
 struct Team {
     ranks: usize,
@@ -66,19 +62,13 @@ impl Member<'_> {
             team.generation.store(generation + 1, Ordering::Release);
             return;
         }
-        let mut spins = 0u32;
-        while team.generation.load(Ordering::Acquire) == generation {
+        crate::parallel::wait_until(|| {
             assert!(
                 !team.poisoned.load(Ordering::Relaxed),
                 "the other thread of the team panicked"
             );
-            if spins < SPINS_BEFORE_YIELD {
-                spins += 1;
-                std::hint::spin_loop();
-            } else {
-                std::thread::yield_now();
-            }
-        }
+            team.generation.load(Ordering::Acquire) != generation
+        });
     }
 
     /// Sums per-part values over all parts, in part order: `partial(part)` is called for this

@@ -7,6 +7,14 @@
 //! cell's stiffness but keep the condensed mass, so both carry the same gravity load. A second
 //! load, a pull on every downward-facing voxel face mapped to each level's nodes through its shape
 //! functions, checks that the picture is not an artefact of the body load: the ratios barely move.
+//!
+//! The table's last columns separate the two sources of a coarse solution's error. "best fit" is
+//! the RMS error of the level-l field closest to the fine one (least squares over the voxel
+//! corners): no coarse stiffness can do better than it, and it stays far below half the uniform
+//! error at every level. So the gap to Nesme's ½ is not in what trilinear coarse cells can
+//! represent but in the condensed (Galerkin, `Hᵀ K H`) stiffness itself, which is too stiff where a
+//! cell holds a thin neck of material beside bulk: the trilinear field strains the bulk with the
+//! neck.
 
 use incise_fem::integrate::{Loads, static_solve};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
@@ -141,6 +149,70 @@ fn error(
     ((num / den).sqrt(), diff / norm)
 }
 
+/// The level-l field closest to the fine one in the measure [`error`] uses: the least-squares fit
+/// of the element shape functions to the fine displacement over all voxel corners (normal
+/// equations `NᵀN u = Nᵀ u_fine`, solved per axis by Jacobi-preconditioned CG). Every level-l
+/// solution, whatever its elements' stiffness, lies in this space, so the fit's RMS error is a lower
+/// bound on the RMS error any choice of coarse stiffness can reach.
+fn best_fit(grid: &BranchedGrid, model: &HexModel, fine: &BTreeMap<[u32; 3], Vec3>) -> Vec<Vec3> {
+    let mut samples: Vec<([(u32, f64); 8], Vec3)> = Vec::new();
+    for_each_voxel_corner(grid, model, |_, p, weights| samples.push((weights, fine[&p])));
+    let n = model.node_count();
+    let apply = |x: &[f64], out: &mut [f64]| {
+        out.fill(0.0);
+        for (w, _) in &samples {
+            let v: f64 = w.iter().map(|&(node, wt)| wt * x[node as usize]).sum();
+            for &(node, wt) in w {
+                out[node as usize] += wt * v;
+            }
+        }
+    };
+    let mut diag = vec![0.0; n];
+    for (w, _) in &samples {
+        for &(node, wt) in w {
+            diag[node as usize] += wt * wt;
+        }
+    }
+    let mut u = vec![[0.0; 3]; n];
+    for axis in 0..3 {
+        let mut b = vec![0.0; n];
+        for (w, f) in &samples {
+            for &(node, wt) in w {
+                b[node as usize] += wt * f[axis];
+            }
+        }
+        let dot = |a: &[f64], c: &[f64]| a.iter().zip(c).map(|(x, y)| x * y).sum::<f64>();
+        let (mut x, mut r) = (vec![0.0; n], b.clone());
+        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(a, d)| a / d).collect();
+        let mut p = z.clone();
+        let mut ap = vec![0.0; n];
+        let mut rz = dot(&r, &z);
+        let stop = 1e-24 * dot(&b, &b);
+        for _ in 0..10 * n {
+            if dot(&r, &r) <= stop {
+                break;
+            }
+            apply(&p, &mut ap);
+            let alpha = rz / dot(&p, &ap);
+            for i in 0..n {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * ap[i];
+            }
+            z = r.iter().zip(&diag).map(|(a, d)| a / d).collect();
+            let rz_next = dot(&r, &z);
+            for i in 0..n {
+                p[i] = z[i] + rz_next / rz * p[i];
+            }
+            rz = rz_next;
+        }
+        assert!(dot(&r, &r) <= stop, "the least-squares fit did not converge");
+        for i in 0..n {
+            u[i][axis] = x[i];
+        }
+    }
+    u
+}
+
 /// `volume` with only the voxels face-connected to the held region (z ≥ `z_fix`): a fragment with
 /// no support has no static solution.
 fn supported(volume: &LabelVolume, z_fix: f64) -> LabelVolume {
@@ -196,7 +268,7 @@ fn compare_under(name: &str, volume: &LabelVolume, table: &MaterialTable, z_fix:
     let fine = fine_field(volume, &fine_grid, z_fix, load);
     println!("{name}, {load:?}: displacement error against level 0, sampled at the voxels");
     println!(
-        "level  elements   centre of mass: condensed  uniform  ratio    RMS: condensed  uniform"
+        "level  elements   centre of mass: condensed  uniform  ratio    RMS: condensed  uniform  ratio  best fit  ½ uniform"
     );
     for level in 1..=3 {
         let grid = BranchedGrid::build(volume, table, level).unwrap();
@@ -206,17 +278,23 @@ fn compare_under(name: &str, volume: &LabelVolume, table: &MaterialTable, z_fix:
         let uu = solve(&uniform, z_fix, &loads(volume, &grid, &uniform, load));
         let (rc, cc) = error(&grid, &condensed, &uc, &fine);
         let (ru, cu) = error(&grid, &uniform, &uu, &fine);
+        let (rb, _) = error(&grid, &condensed, &best_fit(&grid, &condensed, &fine), &fine);
         println!(
-            "{level:>5} {:>9} {:>25.2} % {:>7.2} % {:>6.2} {:>15.2} % {:>7.2} %",
+            "{level:>5} {:>9} {:>25.2} % {:>7.2} % {:>6.2} {:>15.2} % {:>7.2} % {:>6.2} {:>7.2} % {:>8.2} %",
             condensed.elements.len(),
             cc * 100.0,
             cu * 100.0,
             cc / cu,
             rc * 100.0,
-            ru * 100.0
+            ru * 100.0,
+            rc / ru,
+            rb * 100.0,
+            ru * 50.0
         );
-        // Issue 4 asks for cc ≤ ½ cu; that does not hold yet at every level (see the table), so
-        // this asserts what does: condensed elements beat uniform ones on both measures.
+        assert!(rb <= rc * (1.0 + 1e-9), "{name}, level {level}: a solution beat the best fit");
+        // Issue 4 asks for cc ≤ ½ cu; that does not hold at levels 2–3 (see the table), so this
+        // asserts what does: condensed elements beat uniform ones on both measures, and no
+        // solution beats the least-squares fit (a check of the fit itself).
         assert!(
             cc < cu && rc < ru,
             "{name}, level {level}: condensed ({cc:.4}, {rc:.4}) not better than uniform ({cu:.4}, {ru:.4})"

@@ -109,7 +109,15 @@ pub fn refine(a: &Mat3, q: &mut Quat, max_iterations: usize) -> Refined {
 pub fn nearest4<W: Lane4>(a: &Matrix<W>, q: &mut [Quat; 4], max_iterations: usize) -> [Refined; 4] {
     let like = a[0][0];
     let wide = |v: [f64; 4]| W::from_lanes(like, v);
-    let lane = |m: &Matrix<W>, l: usize| -> Mat3 { m.map(|row| row.map(|x| x.lanes()[l])) };
+    let lane = |m: &Matrix<W>, l: usize| -> Mat3 {
+        let mut out = [[0.0; 3]; 3];
+        for (o, row) in out.iter_mut().zip(m) {
+            for (x, w) in o.iter_mut().zip(row) {
+                *x = w.lanes()[l];
+            }
+        }
+        out
+    };
     let mut current = Quaternion {
         w: wide(q.map(|q| q.w)),
         v: [wide(q.map(|q| q.v[0])), wide(q.map(|q| q.v[1])), wide(q.map(|q| q.v[2]))],
@@ -217,28 +225,40 @@ fn dot3<T: Lane>(a: &[T; 3], b: &[T; 3]) -> T {
 fn iterate<T: Lane>(a: &Matrix<T>, q: &Quaternion<T>, r: &Matrix<T>) -> Iteration<T> {
     // B = Rᵀa. Turning R by a small θ in its own frame, R' = R·exp([θ]×), changes tr(R'ᵀa)
     // by gᵀθ − ½ θᵀHθ with g = axial(B − Bᵀ) and H = tr(B)·I − sym(B).
-    let b: Matrix<T> = std::array::from_fn(|i| {
-        std::array::from_fn(|j| r[0][i] * a[0][j] + r[1][i] * a[1][j] + r[2][i] * a[2][j])
-    });
+    //
+    // Plain loops, not `array::from_fn` or `map`: on vector lanes this runs under a run-time
+    // target feature, and a closure the compiler leaves out of line runs without it, turning
+    // every lane operation into a call (the step ran 1.8× slower when that happened).
+    let mut b: Matrix<T> = *a;
+    for (i, row) in b.iter_mut().enumerate() {
+        for (j, bij) in row.iter_mut().enumerate() {
+            *bij = r[0][i] * a[0][j] + r[1][i] * a[1][j] + r[2][i] * a[2][j];
+        }
+    }
     let g = [b[2][1] - b[1][2], b[0][2] - b[2][0], b[1][0] - b[0][1]];
     let t = b[0][0] + b[1][1] + b[2][2];
-    let h: Matrix<T> = std::array::from_fn(|i| {
-        std::array::from_fn(|j| {
+    let mut h: Matrix<T> = b;
+    for (i, row) in h.iter_mut().enumerate() {
+        for (j, hij) in row.iter_mut().enumerate() {
             let s = t.constant(-0.5) * (b[i][j] + b[j][i]);
-            if i == j { s + t } else { s }
-        })
-    });
+            *hij = if i == j { s + t } else { s };
+        }
+    }
     let (newton, trusted) = newton_step(&h, &g);
     // Müller et al.'s step: H replaced by |tr B|·I, safe far from the maximum (and for inverted
     // elements), but only linearly convergent (about a factor 3 per iteration).
     let inv = t.constant(1.0) / (t.abs() + t.constant(1e-9));
-    let theta: [T; 3] = std::array::from_fn(|k| T::select(trusted, newton[k], g[k] * inv));
+    let mut theta = g;
+    for (k, th) in theta.iter_mut().enumerate() {
+        *th = T::select(trusted, newton[k], g[k] * inv);
+    }
     let size = dot3(&theta, &theta);
     // The turn by θ is taken as the unnormalised quaternion (1, θ/2): the same axis and an
     // angle 2·atan(|θ|/2) ≈ |θ| as θ → 0, so the fixed point (θ = 0) is the same, a step never
     // exceeds half a turn, and no sin/cos is evaluated (this runs per element per step).
     let half = t.constant(0.5);
-    let turned = product(q, &Quaternion { w: t.constant(1.0), v: theta.map(|c| half * c) });
+    let turn = [half * theta[0], half * theta[1], half * theta[2]];
+    let turned = product(q, &Quaternion { w: t.constant(1.0), v: turn });
     let next = normalized(&turned);
     let next_matrix = matrix_of(&next);
     Iteration {
@@ -284,7 +304,11 @@ fn normalized<T: Lane>(q: &Quaternion<T>) -> Quaternion<T> {
     let positive = n.gt(n.constant(0.0));
     Quaternion {
         w: T::select(positive, q.w / n, n.constant(1.0)),
-        v: q.v.map(|c| T::select(positive, c / n, n.constant(0.0))),
+        v: [
+            T::select(positive, q.v[0] / n, n.constant(0.0)),
+            T::select(positive, q.v[1] / n, n.constant(0.0)),
+            T::select(positive, q.v[2] / n, n.constant(0.0)),
+        ],
     }
 }
 
@@ -309,8 +333,10 @@ fn newton_step<T: Lane>(h: &Matrix<T>, g: &[T; 3]) -> ([T; 3], T::Mask) {
         h[i1][j1] * h[i2][j2] - h[i1][j2] * h[i2][j1]
     };
     // H is symmetric, so its inverse is the cofactor matrix over the determinant.
-    let theta: [T; 3] =
-        std::array::from_fn(|i| (cof(i, 0) * g[0] + cof(i, 1) * g[1] + cof(i, 2) * g[2]) * inv);
+    let mut theta = *g;
+    for (i, th) in theta.iter_mut().enumerate() {
+        *th = (cof(i, 0) * g[0] + cof(i, 1) * g[1] + cof(i, 2) * g[2]) * inv;
+    }
     let short = dot3(&theta, &theta).le(scale.constant(1.0));
     (theta, definite & short)
 }

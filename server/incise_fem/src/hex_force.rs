@@ -12,7 +12,8 @@ use crate::kernel::{
     vectorized,
 };
 use crate::model::HexModel;
-use crate::parallel::{fill_element_pairs, join_if, map_elements, update_elements, update_runs};
+use crate::parallel::{fill_element_runs, join_if, map_elements, update_elements, update_runs};
+use crate::walsh::Walsh;
 use incise_grid::hex8::{Mat24, corner};
 use incise_math::Vec3;
 use incise_math::lanes::{Lane, Lane4};
@@ -41,6 +42,9 @@ pub struct HexForceField {
     /// Each element's stiffness, component-major ([`component_major`]); elements that share a
     /// matrix in the model share it here too.
     stiffness: Vec<Arc<Mat24>>,
+    /// The same stiffness in the Walsh–Hadamard basis where it is a full cell's
+    /// ([`Walsh::of`]): the element passes multiply by that instead.
+    walsh: Vec<Option<Arc<Walsh>>>,
     centre_gradient: [Vec3; 8],
 }
 
@@ -75,23 +79,27 @@ impl HexForceField {
         });
         // One permuted copy per shared matrix, so the pairs of the element passes still find
         // their neighbours' matrix the same.
-        let mut permuted: std::collections::HashMap<*const Mat24, Arc<Mat24>> =
-            std::collections::HashMap::new();
-        let stiffness = model
+        let mut permuted: std::collections::HashMap<
+            *const Mat24,
+            (Arc<Mat24>, Option<Arc<Walsh>>),
+        > = std::collections::HashMap::new();
+        let (stiffness, walsh) = model
             .elements
             .iter()
             .map(|el| {
-                Arc::clone(
-                    permuted
-                        .entry(Arc::as_ptr(&el.stiffness))
-                        .or_insert_with(|| Arc::new(component_major(&el.stiffness))),
-                )
+                let (k, w) = permuted.entry(Arc::as_ptr(&el.stiffness)).or_insert_with(|| {
+                    let k = component_major(&el.stiffness);
+                    let w = Walsh::of(&k).map(Arc::new);
+                    (Arc::new(k), w)
+                });
+                (Arc::clone(k), w.clone())
             })
-            .collect();
+            .unzip();
         Self {
             formulation,
             frames: vec![Frame::IDENTITY; model.elements.len()],
             stiffness,
+            walsh,
             centre_gradient,
         }
     }
@@ -237,6 +245,7 @@ impl HexForceField {
     ) {
         let k = &self.stiffness[first];
         if let [a, b] = slots
+            && self.walsh[first].is_none()
             && Arc::ptr_eq(k, &self.stiffness[first + 1])
         {
             let (g, h) = product_pair(
@@ -249,19 +258,34 @@ impl HexForceField {
         } else {
             for (i, slot) in slots.iter_mut().enumerate() {
                 let e = first + i;
-                let g = product(&self.stiffness[e], &self.local(wide, model, e, input));
+                let g = self.product(wide, e, &self.local(wide, model, e, input));
                 *slot = to_global(wide, &self.frames[e].r, scale, &g);
             }
+        }
+    }
+
+    /// `Kₑ v` (element frame, component-major): through the Walsh–Hadamard basis for a full cell,
+    /// the dense product otherwise.
+    #[allow(clippy::inline_always)]
+    #[inline(always)]
+    fn product(&self, wide: Wide, e: usize, v: &Local) -> Local {
+        match &self.walsh[e] {
+            Some(walsh) => walsh.apply(wide, v),
+            None => product(&self.stiffness[e], v),
         }
     }
 
     /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product.
     fn add_products(&self, model: &HexModel, scale: f64, input: Input, out: &mut [Vec3]) {
         with_scratch(model.elements.len(), |per_element| {
-            fill_element_pairs(per_element, |e, slots| {
+            fill_element_runs(per_element, |start, run| {
                 vectorized(
                     #[inline(always)]
-                    |wide| self.products_from(wide, model, scale, input, e, slots),
+                    |wide| {
+                        for (k, slots) in run.chunks_mut(2).enumerate() {
+                            self.products_from(wide, model, scale, input, start + 2 * k, slots);
+                        }
+                    },
                 );
             });
             for (el, g) in model.elements.iter().zip(per_element.iter()) {
@@ -322,7 +346,10 @@ impl HexForceField {
                     let u =
                         self.local(wide, model, e, Input::Displacement { x, moved: Some((s, v)) });
                     let q = self.local(wide, model, e, Input::Vector(p));
-                    let (g, k) = product_pair(&self.stiffness[e], &u, &q);
+                    let (g, k) = match &self.walsh[e] {
+                        Some(walsh) => (walsh.apply(wide, &u), walsh.apply(wide, &q)),
+                        None => product_pair(&self.stiffness[e], &u, &q),
+                    };
                     let (nodes, r) = (&model.elements[e].nodes, &self.frames[e].r);
                     scatter_add(nodes, &to_global(wide, r, -1.0, &g), forces);
                     scatter_add(nodes, &to_global(wide, r, b, &k), products);
@@ -420,7 +447,7 @@ impl HexForceField {
                 #[inline(always)]
                 |wide| {
                     let u = self.local(wide, model, e, Input::Displacement { x, moved: None });
-                    let g = product(&self.stiffness[e], &u);
+                    let g = self.product(wide, e, &u);
                     0.5 * u.iter().zip(g.iter()).map(|(a, b)| a * b).sum::<f64>()
                 },
             )

@@ -15,6 +15,11 @@
 //! give the same bits (`the_fallback_has_the_same_bits`), so frames replay bit for bit on any
 //! machine. Neighbouring elements that share a matrix are multiplied as a pair
 //! ([`Mat24::mul_vec_symmetric_pair`]), loading each row once for both.
+//!
+//! **Full cells** do not use the dense product at all: their stiffness is sparse in the
+//! Walsh–Hadamard basis of the corners ([`crate::walsh`]), 45 of 576 entries, and that product is
+//! inlined into the element loop (few accumulators, nothing to spill). The dense product serves
+//! partially filled and superimposed cells. B3 at 1 ms: 940 → 1,070 steps/s.
 
 use incise_grid::hex8::Mat24;
 use incise_math::Vec3;
@@ -245,7 +250,7 @@ impl Wide {
 
 /// Whether the element passes may use AVX2 with FMA, and the token that lets them.
 #[derive(Clone, Copy)]
-pub(crate) struct Wide(#[cfg(target_arch = "x86_64")] Option<pulp::x86::V3>);
+pub(crate) struct Wide(#[cfg(target_arch = "x86_64")] pub(crate) Option<pulp::x86::V3>);
 
 impl Wide {
     /// Lane-by-lane scalar code (the fallback; the same bits).

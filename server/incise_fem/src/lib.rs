@@ -21,6 +21,7 @@ mod parallel;
 mod supernodal;
 mod team;
 pub mod tet;
+mod walsh;
 
 pub use constraints::FixedNodes;
 pub use hex_force::{Formulation, HexForceField};

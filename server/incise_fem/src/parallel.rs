@@ -199,15 +199,11 @@ fn on_chunks<T: Send>(out: &mut [T], chunk: usize, run: &(impl Fn(usize, &mut [T
     });
 }
 
-/// Like [`fill_elements`], but `f(start, slots)` fills a run of two consecutive outputs at once
-/// (one at the very end of an odd-length chunk), so that neighbours sharing data can be computed
-/// together. Chunks start at even indices whatever the thread count.
-pub(crate) fn fill_element_pairs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
-    let run = |start: usize, out: &mut [T]| {
-        for (k, pair) in out.chunks_mut(2).enumerate() {
-            f(start + 2 * k, pair);
-        }
-    };
+/// Like [`fill_elements`], but `f(start, run)` fills a whole run of consecutive outputs (one per
+/// thread), so that its loop can be compiled for wider instructions once and neighbours sharing
+/// data computed together. Runs start at even indices whatever the thread count.
+pub(crate) fn fill_element_runs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
+    let run = |start: usize, out: &mut [T]| f(start, out);
     let n = out.len();
     let t = threads();
     if t == 1 || n < PARALLEL_MIN {

@@ -12,7 +12,7 @@ use crate::kernel::{
     vectorized,
 };
 use crate::model::HexModel;
-use crate::parallel::{fill_element_runs, join_if, map_elements, update_elements, update_runs};
+use crate::parallel::{join_if, map_elements, update_elements, update_runs};
 use crate::walsh::Walsh;
 use incise_grid::hex8::{Mat24, corner};
 use incise_math::Vec3;
@@ -278,7 +278,7 @@ impl HexForceField {
     /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product.
     fn add_products(&self, model: &HexModel, scale: f64, input: Input, out: &mut [Vec3]) {
         with_scratch(model.elements.len(), |per_element| {
-            fill_element_runs(per_element, |start, run| {
+            update_runs(per_element, |start, run| {
                 vectorized(
                     #[inline(always)]
                     |wide| {

@@ -173,7 +173,8 @@ pub(crate) fn update_elements<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) 
 }
 
 /// `f(start, run)` for contiguous runs of `out` that cover it, one per thread ([`threads`]);
-/// `start` is the index of `run[0]`.
+/// `start` is the index of `run[0]`, always even (an element pass can pair neighbours the same
+/// way whatever the thread count), and `f` can compile its whole run for wider instructions.
 pub(crate) fn update_runs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
     let n = out.len();
     let t = threads();
@@ -181,7 +182,7 @@ pub(crate) fn update_runs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + 
         f(0, out);
         return;
     }
-    let chunk = n.div_ceil(t);
+    let chunk = n.div_ceil(t).next_multiple_of(2);
     on_chunks(out, chunk, &f);
 }
 
@@ -197,21 +198,6 @@ fn on_chunks<T: Send>(out: &mut [T], chunk: usize, run: &(impl Fn(usize, &mut [T
         run(0, first);
         pending.wait();
     });
-}
-
-/// Like [`fill_elements`], but `f(start, run)` fills a whole run of consecutive outputs (one per
-/// thread), so that its loop can be compiled for wider instructions once and neighbours sharing
-/// data computed together. Runs start at even indices whatever the thread count.
-pub(crate) fn fill_element_runs<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
-    let run = |start: usize, out: &mut [T]| f(start, out);
-    let n = out.len();
-    let t = threads();
-    if t == 1 || n < PARALLEL_MIN {
-        run(0, out);
-        return;
-    }
-    let chunk = n.div_ceil(t).next_multiple_of(2);
-    on_chunks(out, chunk, &run);
 }
 
 /// `(0..n).map(f)` computed like [`fill_elements`], results in index order.

@@ -38,21 +38,24 @@ impl Walsh {
     /// The sparse form of `k` (component-major, symmetric) when it has the pattern of a full cell
     /// of one isotropic material; `None` otherwise (partially filled cells, superimposed ones).
     pub(crate) fn of(k: &Mat24) -> Option<Self> {
-        let sign =
-            |w: usize, c: usize| if (w & c).count_ones().is_multiple_of(2) { 1.0 } else { -1.0 };
-        // D = Ĥ K Ĥ, Ĥ symmetric, per component block.
+        // D = Ĥ K Ĥ (Ĥ symmetric, per component block) by fast transforms of the rows' and then
+        // the columns' 8-entry segments: a few thousand operations, since this runs for every
+        // distinct matrix whenever a cut rebuilds the force field.
         let mut d_full = [[0.0; 24]; 24];
         for (r, row) in d_full.iter_mut().enumerate() {
-            let (i, w) = (r / 8, r % 8);
-            for (col, out) in row.iter_mut().enumerate() {
-                let (j, v) = (col / 8, col % 8);
-                let mut sum = 0.0;
-                for a in 0..8 {
-                    for b in 0..8 {
-                        sum += sign(w, a) * k.get(8 * i + a, 8 * j + b) * sign(v, b);
-                    }
+            row.copy_from_slice(&k.0[24 * r..24 * r + 24]);
+            for segment in row.chunks_exact_mut(8) {
+                let segment: &mut [f64; 8] = segment.try_into().expect("8 entries");
+                transform(segment);
+            }
+        }
+        for col in 0..24 {
+            for block in 0..3 {
+                let mut segment: [f64; 8] = std::array::from_fn(|a| d_full[8 * block + a][col]);
+                transform(&mut segment);
+                for (a, x) in segment.into_iter().enumerate() {
+                    d_full[8 * block + a][col] = x;
                 }
-                *out = sum;
             }
         }
         let largest = d_full.iter().flatten().fold(0.0_f64, |m, x| m.max(x.abs()));

@@ -16,6 +16,7 @@
 //! cell holds a thin neck of material beside bulk: the trilinear field strains the bulk with the
 //! neck.
 
+use incise_fem::cg::{self, CgSettings};
 use incise_fem::integrate::{Loads, static_solve};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::hex8::{corner, shape};
@@ -151,65 +152,47 @@ fn error(
 
 /// The level-l field closest to the fine one in the measure [`error`] uses: the least-squares fit
 /// of the element shape functions to the fine displacement over all voxel corners (normal
-/// equations `NᵀN u = Nᵀ u_fine`, solved per axis by Jacobi-preconditioned CG). Every level-l
-/// solution, whatever its elements' stiffness, lies in this space, so the fit's RMS error is a lower
-/// bound on the RMS error any choice of coarse stiffness can reach.
+/// equations `NᵀN u = Nᵀ u_fine`, the three axes at once, by the project's Jacobi-preconditioned
+/// CG). Every level-l solution, whatever its elements' stiffness, lies in this space, so the fit's
+/// RMS error is a lower bound on the RMS error any choice of coarse stiffness can reach.
 fn best_fit(grid: &BranchedGrid, model: &HexModel, fine: &BTreeMap<[u32; 3], Vec3>) -> Vec<Vec3> {
     let mut samples: Vec<([(u32, f64); 8], Vec3)> = Vec::new();
     for_each_voxel_corner(grid, model, |_, p, weights| samples.push((weights, fine[&p])));
     let n = model.node_count();
-    let apply = |x: &[f64], out: &mut [f64]| {
-        out.fill(0.0);
+    let (mut diag, mut b) = (vec![0.0; n], vec![[0.0; 3]; n]);
+    for (w, f) in &samples {
+        for &(node, wt) in w {
+            diag[node as usize] += wt * wt;
+            for a in 0..3 {
+                b[node as usize][a] += wt * f[a];
+            }
+        }
+    }
+    let apply = |x: &[Vec3], out: &mut [Vec3]| {
+        out.fill([0.0; 3]);
         for (w, _) in &samples {
-            let v: f64 = w.iter().map(|&(node, wt)| wt * x[node as usize]).sum();
+            let mut v = [0.0; 3];
             for &(node, wt) in w {
-                out[node as usize] += wt * v;
+                for a in 0..3 {
+                    v[a] += wt * x[node as usize][a];
+                }
+            }
+            for &(node, wt) in w {
+                for a in 0..3 {
+                    out[node as usize][a] += wt * v[a];
+                }
             }
         }
     };
-    let mut diag = vec![0.0; n];
-    for (w, _) in &samples {
-        for &(node, wt) in w {
-            diag[node as usize] += wt * wt;
+    let precondition = |r: &[Vec3], z: &mut [Vec3]| {
+        for ((z, r), d) in z.iter_mut().zip(r).zip(&diag) {
+            *z = r.map(|c| c / d);
         }
-    }
+    };
     let mut u = vec![[0.0; 3]; n];
-    for axis in 0..3 {
-        let mut b = vec![0.0; n];
-        for (w, f) in &samples {
-            for &(node, wt) in w {
-                b[node as usize] += wt * f[axis];
-            }
-        }
-        let dot = |a: &[f64], c: &[f64]| a.iter().zip(c).map(|(x, y)| x * y).sum::<f64>();
-        let (mut x, mut r) = (vec![0.0; n], b.clone());
-        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(a, d)| a / d).collect();
-        let mut p = z.clone();
-        let mut ap = vec![0.0; n];
-        let mut rz = dot(&r, &z);
-        let stop = 1e-24 * dot(&b, &b);
-        for _ in 0..10 * n {
-            if dot(&r, &r) <= stop {
-                break;
-            }
-            apply(&p, &mut ap);
-            let alpha = rz / dot(&p, &ap);
-            for i in 0..n {
-                x[i] += alpha * p[i];
-                r[i] -= alpha * ap[i];
-            }
-            z = r.iter().zip(&diag).map(|(a, d)| a / d).collect();
-            let rz_next = dot(&r, &z);
-            for i in 0..n {
-                p[i] = z[i] + rz_next / rz * p[i];
-            }
-            rz = rz_next;
-        }
-        assert!(dot(&r, &r) <= stop, "the least-squares fit did not converge");
-        for i in 0..n {
-            u[i][axis] = x[i];
-        }
-    }
+    let settings = CgSettings { tolerance: 1e-12, max_iterations: 10 * n };
+    let report = cg::solve(apply, precondition, &FixedNodes::none(n), &b, &mut u, settings);
+    assert!(report.converged, "the least-squares fit did not converge: {report:?}");
     u
 }
 

@@ -126,7 +126,8 @@ fn speed_error_report_writes_table_csv_png_and_json() {
             "--repeats",
             "1",
         ])
-        .args(["--stable-seconds", "0.02", "--max-error", "0.5", "--json", "--csv"])
+        .args(["--stable-seconds", "0.02", "--settle-seconds", "3", "--max-error", "0.5"])
+        .args(["--json", "--csv"])
         .arg(&csv)
         .arg("--png")
         .arg(&png)
@@ -142,6 +143,13 @@ fn speed_error_report_writes_table_csv_png_and_json() {
         }
     }
     assert!(rows.iter().any(|r| r["stable"] == true && r["steps_per_s"].as_f64().unwrap() > 0.0));
+    // Every stable implicit row settles on the static answer of its own mesh and model: the
+    // measured error and the static one agree (the run stops within 1e-5 of still).
+    for r in rows.iter().filter(|r| r["stable"] == true && r["integrator"] == "implicit-euler") {
+        assert_eq!(r["settled"], true, "{r}");
+        let (e, s) = (r["error"].as_f64().unwrap(), r["error_static"].as_f64().unwrap());
+        assert!((e - s).abs() <= 1e-3 * s.max(1e-3), "{r}");
+    }
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("fastest stable configuration within 50.0 %"), "{stdout}");
     assert!(stdout.contains("explicit stable dt per mesh"), "{stdout}");

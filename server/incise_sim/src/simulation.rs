@@ -532,6 +532,16 @@ impl Simulation {
         }
     }
 
+    /// The hexahedral model's loads: gravity and the patch loads spread over its nodes (`None`
+    /// in a tensor-mass scene).
+    #[must_use]
+    pub fn loads(&self) -> Option<&Loads> {
+        match &self.body {
+            Body::Hex(hex) => Some(&hex.loads),
+            Body::Tet(_) => None,
+        }
+    }
+
     /// The tensor-mass mechanics (`None` in a hexahedral scene).
     #[must_use]
     pub fn tet(&self) -> Option<&TetBody> {

@@ -54,6 +54,10 @@ pub struct SpeedErrorArgs {
     /// Folder of the scene files (b1.toml, b2.toml, b3.toml, c_*.toml, liver_*.toml).
     #[arg(long, value_name = "DIR", default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/scenes"))]
     scene_dir: PathBuf,
+    /// Cells per axis of scene B's reference (a static corotational solve of b3.toml's block):
+    /// 1.5 times as fine as B3 by default; 44,30,24 moves the answer by 3.6 % and takes a minute.
+    #[arg(long, value_delimiter = ',', default_value = "33,22,18")]
+    reference_cells: Vec<usize>,
     /// Levels of the 13,648-voxel liver to run (each against its level-0 static solve).
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     liver_levels: Vec<u32>,
@@ -167,13 +171,14 @@ struct Case {
 }
 
 /// Reads `file` from the scene folder and builds it with `Simulation::new`, at `level` and with
-/// `voxels` per axis (a procedural block) when given instead of the file's own.
+/// `voxels` per axis (a procedural block) when given instead of the file's own; also returns the
+/// volume as read.
 fn load_scene(
     args: &SpeedErrorArgs,
     file: &str,
     level: Option<u32>,
     voxels: Option<[usize; 3]>,
-) -> anyhow::Result<(SceneConfig, Simulation)> {
+) -> anyhow::Result<(SceneConfig, Simulation, incise_grid::LabelVolume)> {
     let path = args.scene_dir.join(file);
     let (mut config, mut volume) = incise_io::read_scene(&path)
         .with_context(|| format!("reading scene {} (see --scene-dir)", path.display()))?;
@@ -185,7 +190,7 @@ fn load_scene(
         volume = config.procedural_volume().expect("a block scene");
     }
     let simulation = Simulation::new(&config, &volume, &path.display().to_string())?;
-    Ok((config, simulation))
+    Ok((config, simulation, volume))
 }
 
 /// A case from a built scene.
@@ -229,7 +234,7 @@ fn block_case(
     file: &str,
     voxels: Option<[usize; 3]>,
 ) -> anyhow::Result<Case> {
-    let (config, simulation) = load_scene(args, file, None, voxels)?;
+    let (config, simulation, _) = load_scene(args, file, None, voxels)?;
     let Some(patch) = config.loads.first() else { bail!("{file}: scene B pulls a patch") };
     let rest = &simulation.model().expect("a hexahedral scene").rest;
     let dist = |n: usize| (0..3).map(|a| (rest[n][a] - patch.centre[a]).powi(2)).sum::<f64>();
@@ -251,7 +256,7 @@ fn block_case(
 /// reference Euler–Bernoulli's `q L⁴ / (8 E I)` from the file's size, material and gravity.
 fn cantilever_case(args: &SpeedErrorArgs, n: usize) -> anyhow::Result<Case> {
     let file = format!("c_{n}x{}x{}.toml", n / 10, n / 10);
-    let (config, simulation) = load_scene(args, &file, None, None)?;
+    let (config, simulation, _) = load_scene(args, &file, None, None)?;
     let VolumeSpec::Block { size_m: [l, w, h], .. } = config.volume else {
         bail!("{file}: scene C is a procedural block")
     };
@@ -275,20 +280,18 @@ fn cantilever_case(args: &SpeedErrorArgs, n: usize) -> anyhow::Result<Case> {
     Ok(case)
 }
 
-/// The liver scene `file` at `level`, probed by its centre of mass. Only the tissue connected to
-/// the scene's hold is kept (see [`supported_volume`]): a fragment striding cut loose would have no
-/// static answer and would fall for ever.
-fn liver_case(args: &SpeedErrorArgs, name: &str, file: &str, level: u32) -> anyhow::Result<Case> {
-    let (config, volume) = supported_volume(args, file)?;
-    let path = args.scene_dir.join(file).display().to_string();
-    let mut config = config;
-    let VolumeSpec::File { stride, .. } = config.volume.clone() else {
-        bail!("{file}: not a file volume")
-    };
-    // The volume is already filtered and strided.
-    config.volume = VolumeSpec::File { path: path.clone(), stride: [1; 3], labels: Vec::new() };
+/// A liver scene at `level`, probed by its centre of mass, on the tissue connected to its hold
+/// ([`supported_volume`]'s result): a fragment striding cut loose would have no static answer and
+/// would fall for ever.
+fn liver_case(
+    name: &str,
+    supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
+    level: u32,
+) -> anyhow::Result<Case> {
+    let (config, volume, stride) = supported;
+    let mut config = config.clone();
     config.level = level;
-    let simulation = Simulation::new(&config, &volume, &path)?;
+    let simulation = Simulation::new(&config, volume, &config.name)?;
     case_of(
         name,
         format!("stride {},{},{}", stride[0], stride[1], stride[2]),
@@ -299,25 +302,25 @@ fn liver_case(args: &SpeedErrorArgs, name: &str, file: &str, level: u32) -> anyh
     )
 }
 
-/// The scene's filtered, strided volume with only the voxels connected (through shared nodes at
-/// level 0) to a held node.
+/// The scene `file`, and its filtered, strided volume with only the voxels connected (through
+/// shared nodes at level 0) to a held node, with the scene's stride; the scene's volume is
+/// rewritten to take that volume as it is.
 fn supported_volume(
     args: &SpeedErrorArgs,
     file: &str,
-) -> anyhow::Result<(SceneConfig, incise_grid::LabelVolume)> {
-    let (config, simulation) = load_scene(args, file, Some(0), None)?;
+) -> anyhow::Result<(SceneConfig, incise_grid::LabelVolume, [usize; 3])> {
+    let (mut config, simulation, raw) = load_scene(args, file, Some(0), None)?;
     let (Some(grid), Some(model)) = (simulation.grid(), simulation.model()) else {
         bail!("{file}: the report measures hexahedral scenes")
     };
-    let VolumeSpec::File { stride, labels, .. } = &config.volume else {
+    let VolumeSpec::File { path, stride, labels } = config.volume.clone() else {
         bail!("{file}: not a file volume")
     };
-    let (_, raw) = incise_io::read_scene(&args.scene_dir.join(file))?;
     let mut filter = incise_grid::LabelFilter::abdominal_ct();
     if !labels.is_empty() {
-        filter = filter.keep(labels);
+        filter = filter.keep(&labels);
     }
-    let strided = raw.filtered(&filter).crop_and_stride(*stride)?;
+    let strided = raw.filtered(&filter).crop_and_stride(stride)?;
     let mut of_node: Vec<Vec<usize>> = vec![Vec::new(); model.node_count()];
     for (e, element) in model.elements.iter().enumerate() {
         for &n in &element.nodes {
@@ -359,7 +362,9 @@ fn supported_volume(
     if dropped > 0 {
         eprintln!("{file}: {dropped} voxels not connected to the hold left out");
     }
-    Ok((config, supported))
+    // The volume is already filtered and strided.
+    config.volume = VolumeSpec::File { path, stride: [1; 3], labels: Vec::new() };
+    Ok((config, supported, stride))
 }
 
 /// The compared quantity of `case` at positions `x`.
@@ -406,8 +411,10 @@ fn static_answer(case: &Case, formulation: Formulation, cholesky: bool) -> Optio
                 gravity: case.loads.gravity.map(|g| s * g),
                 nodal: case.loads.nodal.iter().map(|f| f.map(|c| s * c)).collect(),
             };
+            // 1e-8: the probe to 7 digits or so; with an exact factor Newton's residual stalls
+            // a little above 1e-9 on scene B (rounding), and 50 refactorisations cost minutes.
             let report =
-                static_solve_with(model, &mut ff, fixed, &loads, &mut x, 1e-9, 50, cholesky);
+                static_solve_with(model, &mut ff, fixed, &loads, &mut x, 1e-8, 50, cholesky);
             converged &= report.converged;
             if !converged {
                 break;
@@ -531,7 +538,18 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     } else {
         args.scene.split(',').map(|s| s.trim().to_lowercase()).collect()
     };
+    // Read before the scenes and references are built, so a bad file fails at once.
+    let peer_points: Option<Vec<crate::peers::PeerPoint>> = if args.peers.is_empty() {
+        None
+    } else {
+        let mut points = Vec::new();
+        for path in &args.peers {
+            points.extend(crate::peers::read_peers(path)?);
+        }
+        Some(points)
+    };
     let mut cases: Vec<Case> = Vec::new();
+    let mut liver_13k = None;
     for w in &wanted {
         match w.as_str() {
             "b1" => cases.push(block_case(args, "B1", "b1.toml", None)?),
@@ -543,10 +561,13 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 }
             }
             "liver" => {
+                let small = supported_volume(args, "liver_13k.toml")?;
                 for &level in &args.liver_levels {
-                    cases.push(liver_case(args, "liver-13k", "liver_13k.toml", level)?);
+                    cases.push(liver_case("liver-13k", &small, level)?);
                 }
-                cases.push(liver_case(args, "liver-109k", "liver_109k.toml", 3)?);
+                liver_13k = Some(small);
+                let large = supported_volume(args, "liver_109k.toml")?;
+                cases.push(liver_case("liver-109k", &large, 3)?);
             }
             other => bail!("unknown scene '{other}': expected all, b1, b2, b3, c or liver"),
         }
@@ -559,10 +580,14 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     }
     if cases.iter().any(|c| c.scene.starts_with('B')) {
         eprintln!(
-            "reference for scene B: static corotational solve of b3.toml on 33x22x18 hexahedra (1.5x as fine as B3) …"
+            "reference for scene B: static corotational solve of b3.toml on {} hexahedra …",
+            args.reference_cells.iter().map(usize::to_string).collect::<Vec<_>>().join("x")
         );
         let start = std::time::Instant::now();
-        let fine = block_case(args, "B-ref", "b3.toml", Some([33, 22, 18]))?;
+        let [x, y, z] = args.reference_cells[..] else {
+            bail!("--reference-cells takes three counts, e.g. 33,22,18");
+        };
+        let fine = block_case(args, "B-ref", "b3.toml", Some([x, y, z]))?;
         let Some(reference) = static_answer(&fine, Formulation::Corotational, false) else {
             bail!("the static solve of scene B's reference did not converge");
         };
@@ -575,14 +600,15 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             c.reference = Some(reference);
         }
     }
-    if cases.iter().any(|c| c.scene == "liver-13k") {
+    if let Some(small) = liver_13k.as_ref().filter(|_| cases.iter().any(|c| c.scene == "liver-13k"))
+    {
         // The corotational model's Newton iteration does not converge at level 0 (thin necks of
         // single voxels fold under the organ's weight), so the liver's reference is the linear
         // model's, and only the linear rows are measured against it: their error is the coarse
         // levels' discretisation error, the quantity `model = "auto"` calibrates.
         eprintln!("reference for liver-13k: static linear solve of liver_13k.toml at level 0 …");
         let start = std::time::Instant::now();
-        let fine = liver_case(args, "liver-ref", "liver_13k.toml", 0)?;
+        let fine = liver_case("liver-ref", small, 0)?;
         let Some(reference) = static_answer(&fine, Formulation::Linear, false) else {
             bail!("the static solve of the liver's level-0 reference did not converge");
         };
@@ -602,16 +628,6 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         );
     }
     let bar = crate::progress::stages(cases.len() as u64);
-    // Read before the long measurement, so a bad file fails at once.
-    let peer_points: Option<Vec<crate::peers::PeerPoint>> = if args.peers.is_empty() {
-        None
-    } else {
-        let mut points = Vec::new();
-        for path in &args.peers {
-            points.extend(crate::peers::read_peers(path)?);
-        }
-        Some(points)
-    };
     let mut rows = Vec::new();
     let mut explicit_limits = Vec::new();
     for case in &cases {
@@ -761,11 +777,17 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         .with_context(|| format!("drawing {}", path.display()))?;
     }
     if args.json {
-        if args.peers.is_empty() {
-            println!("{}", serde_json::json!({ "rows": rows }));
-        } else {
-            println!("{}", serde_json::json!({ "rows": rows, "peers": comparisons }));
+        let mut references = serde_json::Map::new();
+        for c in &cases {
+            if let Some(r) = c.reference {
+                references.insert(c.scene.clone(), r.into());
+            }
         }
+        let mut out = serde_json::json!({ "rows": rows, "references": references });
+        if !args.peers.is_empty() {
+            out["peers"] = serde_json::to_value(&comparisons)?;
+        }
+        println!("{out}");
     }
     Ok(())
 }

@@ -452,3 +452,25 @@ fn the_corotational_liver_comes_to_rest_at_level_3() {
     assert!(fastest < 1.0, "a node still moves at {fastest} m/s");
     assert!(farthest < 0.3, "a node is {farthest} m from its rest place");
 }
+
+#[test]
+fn a_cut_that_takes_one_patch_keeps_the_other_pulling() {
+    // Two patches of one node each: the corner node (0, 0, 0), which only voxel 0 holds, and the
+    // opposite corner. Cutting voxel 0 removes the first patch's node.
+    let text = format!(
+        "{GOOD}[[loads]]\ncentre = [0.0, 0.0, 0.0]\nradius = 0.01\nforce = [1.0, 0.0, 0.0]\n\
+         [[loads]]\ncentre = [0.1, 0.1, 0.1]\nradius = 0.01\nforce = [0.0, 2.0, 0.0]\n"
+    );
+    let config = SceneConfig::from_toml(&text, "t.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    let mut sim = Simulation::new(&config, &volume, "t.toml").unwrap();
+    // The total force on the nodes, against the expected one (sums of one share each: exact).
+    let off = |sim: &Simulation, want: [f64; 3]| {
+        let nodal = &sim.loads().expect("a hexahedral scene").nodal;
+        (0..3).map(|a| (nodal.iter().map(|f| f[a]).sum::<f64>() - want[a]).abs()).sum::<f64>()
+    };
+    assert!(off(&sim, [1.0, 2.0, 0.0]) < 1e-12);
+    sim.cut(&incise_grid::GridEdit { remove_voxels: vec![0], sever_links: vec![] }).unwrap();
+    assert!(off(&sim, [0.0, 2.0, 0.0]) < 1e-12, "the second patch still pulls");
+    assert!(sim.step().positions.iter().flatten().all(|c| c.is_finite()));
+}

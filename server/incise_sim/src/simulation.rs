@@ -468,9 +468,12 @@ impl Simulation {
                 *s = [0.0; 3];
             }
         }
-        // A patch that lost all its nodes simply stops pulling.
-        hex.loads = patch_loads(&self.config, &model)
-            .unwrap_or(Loads { gravity: self.config.gravity, nodal: Vec::new() });
+        // A patch that lost all its nodes simply stops pulling; the others keep pulling.
+        let mut loads = Loads { gravity: self.config.gravity, nodal: vec![[0.0; 3]; n] };
+        for p in &self.config.loads {
+            loads.add_patch(&model.rest, p.centre, p.radius, p.force);
+        }
+        hex.loads = loads;
         match &mut hex.integrator {
             Integrator::Implicit(be) => be.remap_warm_start(&old_of_new),
             // Cut elements hold less mass: the cut mesh's limit may be lower; estimated when asked.

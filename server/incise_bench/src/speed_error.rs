@@ -427,6 +427,21 @@ fn static_answer(case: &Case, formulation: Formulation, cholesky: bool) -> Optio
     None
 }
 
+/// A reference case's static answer (block-Jacobi CG: the reference meshes are the large ones),
+/// printed as `quantity` with the time since `start`.
+fn reference_of(
+    fine: &Case,
+    formulation: Formulation,
+    quantity: &str,
+    start: std::time::Instant,
+) -> anyhow::Result<f64> {
+    let Some(reference) = static_answer(fine, formulation, false) else {
+        bail!("the static solve of the reference for {} did not converge", fine.scene);
+    };
+    eprintln!("  {quantity} {:.4} mm ({:.1} s)", reference * 1e3, start.elapsed().as_secs_f64());
+    Ok(reference)
+}
+
 #[derive(Clone, Copy)]
 enum Scheme {
     Implicit(LinearSolver),
@@ -588,14 +603,8 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             bail!("--reference-cells takes three counts, e.g. 33,22,18");
         };
         let fine = block_case(args, "B-ref", "b3.toml", Some([x, y, z]))?;
-        let Some(reference) = static_answer(&fine, Formulation::Corotational, false) else {
-            bail!("the static solve of scene B's reference did not converge");
-        };
-        eprintln!(
-            "  pulled-corner displacement {:.4} mm ({:.1} s)",
-            reference * 1e3,
-            start.elapsed().as_secs_f64()
-        );
+        let reference =
+            reference_of(&fine, Formulation::Corotational, "pulled-corner displacement", start)?;
         for c in cases.iter_mut().filter(|c| c.scene.starts_with('B')) {
             c.reference = Some(reference);
         }
@@ -609,14 +618,8 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         eprintln!("reference for liver-13k: static linear solve of liver_13k.toml at level 0 …");
         let start = std::time::Instant::now();
         let fine = liver_case("liver-ref", small, 0)?;
-        let Some(reference) = static_answer(&fine, Formulation::Linear, false) else {
-            bail!("the static solve of the liver's level-0 reference did not converge");
-        };
-        eprintln!(
-            "  centre-of-mass displacement {:.4} mm ({:.1} s)",
-            reference * 1e3,
-            start.elapsed().as_secs_f64()
-        );
+        let reference =
+            reference_of(&fine, Formulation::Linear, "centre-of-mass displacement", start)?;
         for c in cases.iter_mut().filter(|c| c.scene == "liver-13k") {
             c.reference = Some(reference);
             c.reference_model = Some(Formulation::Linear);

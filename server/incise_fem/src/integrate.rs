@@ -226,7 +226,9 @@ pub fn static_solve_with(
         // one; near it, one to a tenth of what is left to reach `tolerance`. The answer's
         // tolerance is unchanged, and the CG work of all the steps together is about that of one
         // exact solve instead of one per step (a 104,000-unknown block: 54 s instead of 141 s).
-        let exact = 0.1 * tolerance / rel;
+        // Never stricter than a tenth of the tolerance (with no external load `rel` is measured
+        // against nothing and would ask for the impossible).
+        let exact = (0.1 * tolerance / rel).max(0.1 * tolerance);
         let forcing = match ff.formulation() {
             // One step is exact for the linear model: solve it to the tolerance. With a factor,
             // each Newton step costs a factorisation and CG converges in a few iterations: fewer

@@ -28,8 +28,11 @@ fn transformed(model: &HexModel, r: &Mat3, t: Vec3) -> Vec<Vec3> {
         .collect()
 }
 
+/// The largest node norm; NaN if any is (`f64::max` would skip it and let a check pass).
 fn max_norm(v: &[Vec3]) -> f64 {
-    v.iter().map(|x| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt()).fold(0.0, f64::max)
+    v.iter()
+        .map(|x| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt())
+        .fold(0.0, |m: f64, n| if m.is_nan() || n.is_nan() { f64::NAN } else { m.max(n) })
 }
 
 #[test]
@@ -87,6 +90,10 @@ fn patch_test_reproduces_a_uniform_strain() {
             static_solve(&model, &mut ff, &fixed, &Loads::gravity([0.0; 3]), &mut x, 1e-12, 20);
         assert!(
             report.converged || report.relative_residual.is_nan() || report.newton_iterations > 0
+        );
+        assert!(
+            x.iter().flatten().all(|c| c.is_finite()),
+            "{formulation:?}: a position is not finite"
         );
         let mut worst = 0.0f64;
         for (p, xi) in model.rest.iter().zip(&x) {

@@ -38,15 +38,20 @@ fn displacement(model: &HexModel, x: &[Vec3], n: usize) -> f64 {
 
 /// The largest node displacement of `x` from rest (m).
 fn largest_displacement(model: &HexModel, x: &[Vec3]) -> f64 {
-    (0..model.node_count()).map(|n| displacement(model, x, n)).fold(0.0, f64::max)
+    (0..model.node_count()).map(|n| displacement(model, x, n)).fold(0.0, nan_max)
+}
+
+/// The larger of two values, NaN if either is (`f64::max` would skip a NaN and let a check pass).
+fn nan_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() { f64::NAN } else { a.max(b) }
 }
 
 /// The largest component difference between two position lists (m).
 fn largest_difference(a: &[Vec3], b: &[Vec3]) -> f64 {
     a.iter()
         .zip(b)
-        .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f64::max))
-        .fold(0.0, f64::max)
+        .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, nan_max))
+        .fold(0.0, nan_max)
 }
 
 #[test]

@@ -474,3 +474,41 @@ fn a_cut_that_takes_one_patch_keeps_the_other_pulling() {
     assert!(off(&sim, [0.0, 2.0, 0.0]) < 1e-12, "the second patch still pulls");
     assert!(sim.step().positions.iter().flatten().all(|c| c.is_finite()));
 }
+
+#[test]
+fn non_finite_numbers_and_holds_that_hold_nothing_are_refused() {
+    // TOML has nan and inf: each is refused with its key and line.
+    let e = error(&GOOD.replace("value = 0.1", "value = nan"));
+    assert!(
+        e.to_string().contains("bad.toml:16:") && e.to_string().contains("fixed[0].value"),
+        "{e}"
+    );
+    let e = error(&format!("gravity = [0.0, 0.0, -inf]\n{GOOD}"));
+    assert!(e.to_string().contains("bad.toml:1:") && e.to_string().contains("gravity"), "{e}");
+    let load = "[[loads]]\ncentre = [0.0, 0.0, 0.0]\nradius = 0.01\nforce = [1.0, nan, 0.0]\n";
+    let e = error(&format!("{GOOD}{load}"));
+    assert!(
+        e.to_string().contains("bad.toml:20:") && e.to_string().contains("loads[0].force"),
+        "{e}"
+    );
+    let boxed =
+        GOOD.replace("plane = \"z\"\nvalue = 0.1", "min = [0.0, 0.0, 0.0]\nmax = [inf, 1.0, 1.0]");
+    let e = error(&boxed);
+    assert!(e.to_string().contains("fixed[0].max"), "{e}");
+    // A plane or a box that holds no node: the scene builds no body that would fall for ever.
+    let build = |text: &str| {
+        let config = SceneConfig::from_toml(text, "t.toml").unwrap();
+        let volume = config.procedural_volume().unwrap();
+        Simulation::new(&config, &volume, "t.toml")
+    };
+    assert!(build(GOOD).is_ok());
+    let err = build(&GOOD.replace("value = 0.1", "value = 0.12")).err().expect("refused");
+    assert!(
+        err.to_string().contains("fixed[0]") && err.to_string().contains("plane z = 0.12"),
+        "{err}"
+    );
+    let far =
+        GOOD.replace("plane = \"z\"\nvalue = 0.1", "min = [1.0, 1.0, 1.0]\nmax = [2.0, 2.0, 2.0]");
+    let err = build(&far).err().expect("refused");
+    assert!(err.to_string().contains("fixed[0]: no node lies in the box"), "{err}");
+}

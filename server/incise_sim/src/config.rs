@@ -292,7 +292,7 @@ struct RawIntegrator {
 struct RawFixed {
     plane: Option<Spanned<String>>,
     value: Option<Spanned<f64>>,
-    min: Option<[f64; 3]>,
+    min: Option<Spanned<[f64; 3]>>,
     max: Option<Spanned<[f64; 3]>>,
     label: Option<Spanned<u16>>,
 }
@@ -300,9 +300,9 @@ struct RawFixed {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawLoad {
-    centre: [f64; 3],
+    centre: Spanned<[f64; 3]>,
     radius: Spanned<f64>,
-    force: [f64; 3],
+    force: Spanned<[f64; 3]>,
 }
 
 /// 1-based line of byte offset `at` in `text`.
@@ -392,6 +392,26 @@ impl Checker<'_> {
             }
         };
         Ok(Some(TensorMassSpec { elasticity, incompressibility, adaptive_threshold, fibre }))
+    }
+
+    /// A finite number (NaN and infinities are TOML numbers too).
+    fn finite(&self, v: &Spanned<f64>, key: &str) -> Result<f64, SceneError> {
+        let x = *v.get_ref();
+        if x.is_finite() {
+            Ok(x)
+        } else {
+            Err(self.invalid(v.span(), key, format!("is {x}; it must be finite")))
+        }
+    }
+
+    /// Three finite numbers.
+    fn finite3(&self, v: &Spanned<[f64; 3]>, key: &str) -> Result<[f64; 3], SceneError> {
+        let x = *v.get_ref();
+        if x.iter().all(|c| c.is_finite()) {
+            Ok(x)
+        } else {
+            Err(self.invalid(v.span(), key, format!("is {x:?}; every entry must be finite")))
+        }
     }
 
     fn positive(&self, v: &Spanned<f64>, key: &str) -> Result<f64, SceneError> {
@@ -741,9 +761,13 @@ impl SceneConfig {
                         "needs a `value` (m)",
                     ));
                 };
-                fixed.push(FixedSpec::Plane { axis: a, value: *value.get_ref() });
-            } else if let (Some(min), Some(max)) = (f.min, &f.max) {
-                let hi = *max.get_ref();
+                fixed.push(FixedSpec::Plane {
+                    axis: a,
+                    value: c.finite(value, &format!("fixed[{k}].value"))?,
+                });
+            } else if let (Some(min), Some(max)) = (&f.min, &f.max) {
+                let min = c.finite3(min, &format!("fixed[{k}].min"))?;
+                let hi = c.finite3(max, &format!("fixed[{k}].max"))?;
                 if (0..3).any(|a| hi[a] < min[a]) {
                     return Err(c.invalid(
                         max.span(),
@@ -765,9 +789,9 @@ impl SceneConfig {
         let mut loads = Vec::new();
         for (k, l) in raw.loads.iter().enumerate() {
             loads.push(PatchLoad {
-                centre: l.centre,
+                centre: c.finite3(&l.centre, &format!("loads[{k}].centre"))?,
                 radius: c.positive(&l.radius, &format!("loads[{k}].radius"))?,
-                force: l.force,
+                force: c.finite3(&l.force, &format!("loads[{k}].force"))?,
             });
         }
         Ok(Self {
@@ -793,7 +817,10 @@ impl SceneConfig {
                 "integrator.rayleigh_beta",
                 0.0,
             )?,
-            gravity: raw.gravity.map_or([0.0, 0.0, -9.81], |g| *g.get_ref()),
+            gravity: match &raw.gravity {
+                Some(g) => c.finite3(g, "gravity")?,
+                None => [0.0, 0.0, -9.81],
+            },
             fixed,
             loads,
         })

@@ -179,6 +179,31 @@ fn fixed_at(
     fixed
 }
 
+/// The first plane or box hold that holds no node at `rest` (a mistyped coordinate would leave
+/// the body free without a word).
+fn empty_region_hold(config: &SceneConfig, rest: &[Vec3], size: Vec3) -> Option<String> {
+    let tolerance = 1e-9 * size.iter().copied().fold(0.0, f64::max);
+    let extent = |a: usize| {
+        rest.iter()
+            .map(|p| p[a])
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), c| (lo.min(c), hi.max(c)))
+    };
+    config.fixed.iter().enumerate().find_map(|(k, f)| match f {
+        FixedSpec::Plane { axis, value } => {
+            (FixedNodes::plane(rest, *axis, *value, tolerance).count() == 0).then(|| {
+                let (lo, hi) = extent(*axis);
+                format!(
+                    "fixed[{k}]: no node lies on the plane {} = {value} (the nodes span {lo} … {hi} m)",
+                    ["x", "y", "z"][*axis]
+                )
+            })
+        }
+        FixedSpec::Box { min, max } => (FixedNodes::aabb(rest, *min, *max).count() == 0)
+            .then(|| format!("fixed[{k}]: no node lies in the box {min:?} … {max:?}")),
+        FixedSpec::Label { .. } => None,
+    })
+}
+
 /// The labels a scene holds by (`[[fixed]] label`) that no voxel of its model carries: a hold
 /// that would hold nothing is an error when the scene is built.
 fn missing_label_holds(config: &SceneConfig, present: impl Fn(u16) -> bool) -> Option<String> {
@@ -263,7 +288,9 @@ impl Simulation {
             ModelKind::Corotational | ModelKind::TensorMass => Formulation::Corotational,
         };
         let force_field = HexForceField::new(&model, formulation);
-        if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l)) {
+        if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l))
+            .or_else(|| empty_region_hold(config, &model.rest, grid.element_size()))
+        {
             return Err(build(message));
         }
         let fixed = fixed_nodes(config, &grid, &model);
@@ -599,7 +626,9 @@ fn tet_body(
     }
     let step = f64::from(1u32 << config.level);
     let size: Vec3 = std::array::from_fn(|a| step * volume.spacing()[a]);
-    if let Some(message) = missing_label_holds(config, |l| volume.labels().contains(&l)) {
+    if let Some(message) = missing_label_holds(config, |l| volume.labels().contains(&l))
+        .or_else(|| empty_region_hold(config, &model.rest, size))
+    {
         return Err(message);
     }
     // A cell's tetrahedra are held when the cell holds a voxel with the label.

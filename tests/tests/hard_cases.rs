@@ -103,7 +103,8 @@ fn b1_and_b2_at_10_ms_are_stable() {
 fn b3_at_10_ms_stays_bounded() {
     let model = block_model([22, 15, 12], soft());
     let fixed = FixedNodes::plane(&model.rest, 2, BLOCK[2], 1e-9);
-    let state = run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 15, None);
+    // One simulated second: the block swings down and back at least once.
+    let state = run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 100, None);
     assert!(max_displacement(&model, &state.x) < BLOCK[2], "B3 moved more than its height");
 }
 

@@ -495,6 +495,13 @@ fn non_finite_numbers_and_holds_that_hold_nothing_are_refused() {
         GOOD.replace("plane = \"z\"\nvalue = 0.1", "min = [0.0, 0.0, 0.0]\nmax = [inf, 1.0, 1.0]");
     let e = error(&boxed);
     assert!(e.to_string().contains("fixed[0].max"), "{e}");
+    // One label, one material.
+    let twice = "[[materials]]\nlabel = 1\nyoungs_modulus = 2000.0\npoisson_ratio = 0.3\ndensity = 1000.0\n";
+    let e = error(&format!("{GOOD}{twice}"));
+    assert!(
+        e.to_string().contains("bad.toml:18:") && e.to_string().contains("materials[1].label"),
+        "{e}"
+    );
     // A plane or a box that holds no node: the scene builds no body that would fall for ever.
     let build = |text: &str| {
         let config = SceneConfig::from_toml(text, "t.toml").unwrap();

@@ -532,6 +532,15 @@ impl SceneConfig {
                     format!("is {label}; labels are 1..=65535"),
                 ));
             }
+            if let Some(j) =
+                materials.iter().position(|m: &MaterialSpec| i64::from(m.label) == label)
+            {
+                return Err(c.invalid(
+                    m.label.span(),
+                    &key("label"),
+                    format!("{label} is already materials[{j}]'s label; a label has one material"),
+                ));
+            }
             let nu = *m.poisson_ratio.get_ref();
             if !(nu > -1.0 && nu < 0.5) {
                 return Err(c.invalid(

@@ -171,6 +171,23 @@ fn inverted_corner_recovers_after_release() {
         (0..model.node_count()).find(|&n| model.rest[n] == [BLOCK[0], BLOCK[1], 0.0]).unwrap();
     let mut state = State::at_rest(&model);
     state.x[corner] = [BLOCK[0] - 0.06, BLOCK[1] - 0.03, 0.05];
+    // The pressed corner's element is inverted there: the corner's three edges have turned
+    // their orientation over.
+    let element = model.elements.iter().find(|e| e.nodes.contains(&(corner as u32))).unwrap();
+    let c = element.nodes.iter().position(|&n| n as usize == corner).unwrap();
+    let orientation = |x: &[Vec3]| {
+        let e: [Vec3; 3] = [1, 2, 4].map(|bit| {
+            let n = element.nodes[c ^ bit] as usize;
+            std::array::from_fn(|a| x[n][a] - x[corner][a])
+        });
+        e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1])
+            - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0])
+            + e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0])
+    };
+    assert!(
+        orientation(&state.x) * orientation(&model.rest) < 0.0,
+        "the press must invert the corner element"
+    );
     let state = run(
         &model,
         Formulation::Corotational,

@@ -519,3 +519,16 @@ fn non_finite_numbers_and_holds_that_hold_nothing_are_refused() {
     let err = build(&far).err().expect("refused");
     assert!(err.to_string().contains("fixed[0]: no node lies in the box"), "{err}");
 }
+
+#[test]
+fn an_implicit_step_reports_its_stage_times() {
+    let mut sim = load("b1.toml");
+    for _ in 0..3 {
+        let c = sim.step().counters;
+        assert!(c.rotations_ns > 0 && c.solve_ns > 0, "{c:?}");
+        assert!(
+            c.rotations_ns + c.solve_ns + c.update_ns <= c.step_ns,
+            "stages within the step: {c:?}"
+        );
+    }
+}

@@ -393,6 +393,17 @@ pub enum MassMatrix {
     Consistent,
 }
 
+/// Wall time of the stages of the last implicit step (ns): measurements, not state.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StageTimes {
+    /// Extracting the element rotations.
+    pub rotations_ns: u64,
+    /// Forming the right-hand side and solving the linear system (with its element passes).
+    pub solve_ns: u64,
+    /// Updating velocities and positions and the solver's history.
+    pub update_ns: u64,
+}
+
 /// Linearised backward Euler with its solver state (CG warm start, factorisation).
 pub struct BackwardEuler {
     /// Time step (s).
@@ -429,6 +440,8 @@ pub struct BackwardEuler {
     pattern_stale: bool,
     /// Factorisations computed so far (a counter for reports).
     pub factorizations: usize,
+    /// The last step's stage times.
+    pub stage_times: StageTimes,
 }
 
 impl BackwardEuler {
@@ -458,6 +471,7 @@ impl BackwardEuler {
             spare: Vec::new(),
             pattern_stale: false,
             factorizations: 0,
+            stage_times: StageTimes::default(),
         }
     }
 
@@ -516,7 +530,9 @@ impl BackwardEuler {
         let n = model.node_count();
         let h = self.dt;
         let Rayleigh { alpha, beta } = self.damping;
+        let started = std::time::Instant::now();
         ff.update_rotations(model, &state.x);
+        let rotated = std::time::Instant::now();
         // rhs = h (f_int + f_ext − αM v − (β + h) K v). The lockstep solve forms the element
         // terms itself, in its first pass; the others get them here.
         let lockstep = self.solver == LinearSolver::JacobiCg && self.mass == MassMatrix::Lumped;
@@ -638,6 +654,7 @@ impl BackwardEuler {
                 CgReport { iterations: 1, relative_residual: 0.0, converged: true }
             }
         };
+        let solved = std::time::Instant::now();
         for i in 0..n {
             if fixed.is_fixed(i) {
                 state.v[i] = [0.0; 3];
@@ -654,6 +671,12 @@ impl BackwardEuler {
         self.history.truncate(HISTORY - 1);
         self.history.insert(0, dv);
         self.rhs = rhs;
+        let ns = |d: std::time::Duration| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX);
+        self.stage_times = StageTimes {
+            rotations_ns: ns(rotated - started),
+            solve_ns: ns(solved - rotated),
+            update_ns: ns(solved.elapsed()),
+        };
         report
     }
 }

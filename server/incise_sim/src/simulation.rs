@@ -27,6 +27,14 @@ use std::time::Instant;
 pub struct StageCounters {
     /// Wall time of the whole step (ns).
     pub step_ns: u64,
+    /// Implicit hexahedral scenes: the step's stages (ns): extracting the element rotations,
+    /// forming the right-hand side and solving, updating the state. Zero for the other
+    /// integrators.
+    pub rotations_ns: u64,
+    /// See `rotations_ns`.
+    pub solve_ns: u64,
+    /// See `rotations_ns`.
+    pub update_ns: u64,
     /// Linear-solver iterations (CG) in the step.
     pub solver_iterations: usize,
     /// Final relative residual of the step's solve.
@@ -372,6 +380,9 @@ impl Simulation {
                 );
                 counters.solver_iterations = r.iterations;
                 counters.solver_residual = r.relative_residual;
+                let t = be.stage_times;
+                (counters.rotations_ns, counters.solve_ns, counters.update_ns) =
+                    (t.rotations_ns, t.solve_ns, t.update_ns);
             }
             Integrator::Explicit { dt, alpha, .. } => {
                 explicit_step(

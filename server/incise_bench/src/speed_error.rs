@@ -382,14 +382,8 @@ fn measured(case: &Case, x: &[Vec3]) -> f64 {
             nodes.iter().map(|&n| d(n)).sum::<f64>() / nodes.len().max(1) as f64
         }
         Probe::CentreOfMass => {
-            let mut u = [0.0; 3];
-            for ((p, q), m) in x.iter().zip(rest).zip(&case.model.lumped_mass) {
-                for a in 0..3 {
-                    u[a] += m * (p[a] - q[a]);
-                }
-            }
-            let mass = case.model.total_mass();
-            (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt() / mass
+            let u = case.model.centre_of_mass_shift(x);
+            (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt()
         }
     }
 }

@@ -83,14 +83,20 @@ fn material_gradient(m: &[f64; 64], s: Vec3) -> Option<[Vec3; 8]> {
     if xi.iter().all(|&x| (x - 0.5).abs() <= 1e-12) {
         return None;
     }
-    Some(std::array::from_fn(|c| {
+    Some(gradient_at(xi, s))
+}
+
+/// The trilinear shape functions' gradients at local point `xi` of a box of edge lengths `s`
+/// (at the centre, `±0.25 / s` exactly).
+fn gradient_at(xi: Vec3, s: Vec3) -> [Vec3; 8] {
+    std::array::from_fn(|c| {
         let b = corner(c);
         let factor = |a: usize| if b[a] == 1 { xi[a] } else { 1.0 - xi[a] };
         std::array::from_fn(|a| {
             let sign = if b[a] == 1 { 1.0 } else { -1.0 };
             sign * factor((a + 1) % 3) * factor((a + 2) % 3) / s[a]
         })
-    }))
+    })
 }
 
 /// An element's rotation, as the quaternion the next extraction starts from and as a matrix.
@@ -118,10 +124,7 @@ impl HexForceField {
     #[must_use]
     pub fn new(model: &HexModel, formulation: Formulation) -> Self {
         let s = model.element_size;
-        let centre_gradient = std::array::from_fn(|c| {
-            let b = corner(c);
-            std::array::from_fn(|a| if b[a] == 1 { 0.25 / s[a] } else { -0.25 / s[a] })
-        });
+        let centre_gradient = gradient_at([0.5; 3], s);
         // One permuted copy per shared matrix, so the pairs of the element passes still find
         // their neighbours' matrix the same.
         let mut permuted: std::collections::HashMap<

@@ -177,6 +177,19 @@ impl HexModel {
     pub fn total_mass(&self) -> f64 {
         self.lumped_mass.iter().sum()
     }
+
+    /// Displacement of the centre of mass (lumped masses) at positions `x` (m).
+    #[must_use]
+    pub fn centre_of_mass_shift(&self, x: &[Vec3]) -> Vec3 {
+        let mass = self.total_mass();
+        let mut u = [0.0; 3];
+        for ((p, q), m) in x.iter().zip(&self.rest).zip(&self.lumped_mass) {
+            for a in 0..3 {
+                u[a] += m * (p[a] - q[a]) / mass;
+            }
+        }
+        u
+    }
 }
 
 /// One shared copy per distinct (bit-identical) stiffness matrix. Keyed by a few sampled entries

@@ -120,12 +120,5 @@ fn centre_shift(
             report.relative_residual
         ));
     }
-    let mass = model.total_mass();
-    let mut u = [0.0; 3];
-    for ((p, q), m) in x.iter().zip(&model.rest).zip(&model.lumped_mass) {
-        for a in 0..3 {
-            u[a] += m * (p[a] - q[a]) / mass;
-        }
-    }
-    Ok(u)
+    Ok(model.centre_of_mass_shift(&x))
 }

@@ -228,18 +228,29 @@ pub(crate) fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Load
     Ok(Loads { gravity: config.gravity, nodal: patch_forces(config, &model.rest)? })
 }
 
-/// The scene's patch loads spread over the nodes at `rest` (N per node).
+/// The scene's patch loads spread over the nodes at `rest` (N per node); an error names the
+/// first patch that holds no node.
 fn patch_forces(config: &SceneConfig, rest: &[Vec3]) -> Result<Vec<Vec3>, String> {
-    let mut loads = Loads { gravity: [0.0; 3], nodal: vec![[0.0; 3]; rest.len()] };
-    for (k, load) in config.loads.iter().enumerate() {
-        if loads.add_patch(rest, load.centre, load.radius, load.force) == 0 {
-            return Err(format!(
-                "loads[{k}]: no node lies within {} m of {:?}",
-                load.radius, load.centre
-            ));
+    match spread_patches(config, rest) {
+        (nodal, None) => Ok(nodal),
+        (_, Some(k)) => {
+            let load = &config.loads[k];
+            Err(format!("loads[{k}]: no node lies within {} m of {:?}", load.radius, load.centre))
         }
     }
-    Ok(loads.nodal)
+}
+
+/// Every patch load spread over the nodes at `rest` (N per node), and the first patch that holds
+/// no node (it adds nothing).
+fn spread_patches(config: &SceneConfig, rest: &[Vec3]) -> (Vec<Vec3>, Option<usize>) {
+    let mut loads = Loads { gravity: [0.0; 3], nodal: vec![[0.0; 3]; rest.len()] };
+    let mut empty = None;
+    for (k, load) in config.loads.iter().enumerate() {
+        if loads.add_patch(rest, load.centre, load.radius, load.force) == 0 {
+            empty = empty.or(Some(k));
+        }
+    }
+    (loads.nodal, empty)
 }
 
 impl Simulation {
@@ -507,11 +518,8 @@ impl Simulation {
             }
         }
         // A patch that lost all its nodes simply stops pulling; the others keep pulling.
-        let mut loads = Loads { gravity: self.config.gravity, nodal: vec![[0.0; 3]; n] };
-        for p in &self.config.loads {
-            loads.add_patch(&model.rest, p.centre, p.radius, p.force);
-        }
-        hex.loads = loads;
+        let (nodal, _) = spread_patches(&self.config, &model.rest);
+        hex.loads = Loads { gravity: self.config.gravity, nodal };
         match &mut hex.integrator {
             Integrator::Implicit(be) => be.remap_warm_start(&old_of_new),
             // Cut elements hold less mass: the cut mesh's limit may be lower; estimated when asked.

@@ -359,7 +359,7 @@ fn cutting_while_moving_keeps_the_simulation_sound() {
     let elements_before = sim.model().expect("a hexahedral scene").elements.len();
     let mut removed = 0;
     for step in 0..60u32 {
-        let frame = sim.step();
+        let frame = sim.step(&incise_sim::StepInputs::default()).unwrap();
         assert!(frame.positions.iter().all(|p| p.iter().all(|c| c.is_finite())), "step {step}");
         if step % 4 == 0 && step < 48 {
             // A blade walking along x through the middle of the block, one voxel column per cut.

@@ -1,8 +1,9 @@
 //! The committed scene files (`deploy/scenes/*.toml`) through `incise_io::read_scene` and
 //! `incise_sim::Simulation`, and the errors a broken scene file gets.
 
+use incise_math::Vec3;
 use incise_sim::config::AutoLevel;
-use incise_sim::{SceneConfig, SceneError, Simulation};
+use incise_sim::{InputError, SceneConfig, SceneError, Simulation, StepInputs};
 use incise_tests::scene;
 
 fn load(name: &str) -> Simulation {
@@ -45,7 +46,8 @@ fn scene_b1_steps_deterministically() {
     let mut a = load("b1.toml");
     let mut b = load("b1.toml");
     for _ in 0..50 {
-        let (fa, fb) = (a.step(), b.step());
+        let (fa, fb) =
+            (a.step(&StepInputs::default()).unwrap(), b.step(&StepInputs::default()).unwrap());
         assert_eq!(fa.state_hash, fb.state_hash, "step {}", fa.index);
         assert!(fa.positions.iter().all(|p| p.iter().all(|c| c.is_finite())));
     }
@@ -56,7 +58,7 @@ fn scene_b1_steps_deterministically() {
 #[test]
 fn cantilever_scene_reaches_beam_theory() {
     let mut sim = load("c_80x8x8.toml");
-    let frame = sim.step();
+    let frame = sim.step(&StepInputs::default()).unwrap();
     let rest = &sim.model().expect("a hexahedral scene").rest;
     let tip: Vec<f64> = rest
         .iter()
@@ -115,6 +117,180 @@ fn scene_errors_name_the_key_and_line() {
     assert!(e.to_string().contains("integrator.kind") && e.to_string().contains("rk4"), "{e}");
     let e = error("name = ");
     assert!(matches!(e, SceneError::Parse { line: 1, .. }), "{e}");
+}
+
+/// `(line, key)` of an `Invalid` error, or of a `Parse` error (key empty).
+fn where_(e: &SceneError) -> (usize, String) {
+    match e {
+        SceneError::Invalid { line, key, .. } => (*line, key.clone()),
+        SceneError::Parse { line, .. } => (*line, String::new()),
+        SceneError::Build { .. } => (0, String::new()),
+    }
+}
+
+#[test]
+fn keys_that_contradict_their_region_or_integrator_are_refused_with_their_line() {
+    let cases: Vec<(String, usize, &str)> = vec![
+        // A procedural block with a file's keys, and a file with a block's.
+        (GOOD.replace("voxels = [2, 2, 2]", "voxels = [2, 2, 2]\nstride = [2, 2, 2]"), 6, "volume.stride"),
+        (GOOD.replace("voxels = [2, 2, 2]", "voxels = [2, 2, 2]\nlabels = [1]"), 6, "volume.labels"),
+        (
+            GOOD.replace("procedural = \"block\"", "file = \"liver.nii.gz\""),
+            4,
+            "volume.size_m",
+        ),
+        // A [volume] with neither: the error points at its header.
+        (
+            GOOD.replace("procedural = \"block\"\nsize_m = [0.1, 0.1, 0.1]\nvoxels = [2, 2, 2]\n", ""),
+            2,
+            "volume",
+        ),
+        // Fixed regions: a plane with a box corner, a box with a plane's value, half a box, a
+        // value with no plane, a label with a plane, and an empty entry (its header's line).
+        (GOOD.replace("value = 0.1", "value = 0.1\nmin = [0.0, 0.0, 0.0]"), 17, "fixed[0].min"),
+        (
+            GOOD.replace("plane = \"z\"\nvalue = 0.1", "min = [0.0, 0.0, 0.0]\nmax = [1.0, 1.0, 0.0]\nvalue = 0.1"),
+            17,
+            "fixed[0].value",
+        ),
+        (GOOD.replace("plane = \"z\"\nvalue = 0.1", "min = [0.0, 0.0, 0.0]"), 15, "fixed[0].min"),
+        (GOOD.replace("plane = \"z\"\n", ""), 15, "fixed[0].value"),
+        (GOOD.replace("value = 0.1", "label = 1"), 15, "fixed[0].plane"),
+        (GOOD.replace("plane = \"z\"\nvalue = 0.1\n", ""), 14, "fixed[0]"),
+        // Per-material damping would be dropped: refused, naming the scene-wide keys.
+        (GOOD.replace("density = 1000.0", "density = 1000.0\nrayleigh_mass = 0.1"), 11, "materials[0].rayleigh_mass"),
+        // The explicit integrator has no linear solve and no stiffness damping.
+        (
+            GOOD.replace("kind = \"implicit-euler\"", "kind = \"explicit\"\nsolver = \"cholesky\""),
+            13,
+            "integrator.solver",
+        ),
+        (
+            GOOD.replace("kind = \"implicit-euler\"", "kind = \"explicit\"\ncg_tolerance = 1e-8"),
+            13,
+            "integrator.cg_tolerance",
+        ),
+        (
+            GOOD.replace("kind = \"implicit-euler\"", "kind = \"explicit\"\nrayleigh_beta = 0.01"),
+            13,
+            "integrator.rayleigh_beta",
+        ),
+        // No materials at all: reported at line 1, as serde reports a missing top-level key.
+        (
+            GOOD.replace("[[materials]]\nlabel = 1\nyoungs_modulus = 1000.0\npoisson_ratio = 0.3\ndensity = 1000.0\n", ""),
+            1,
+            "materials",
+        ),
+    ];
+    for (text, line, key) in cases {
+        let e = error(&text);
+        assert_eq!(where_(&e), (line, key.to_owned()), "{e}\n--- scene:\n{text}");
+        assert!(e.to_string().starts_with(&format!("bad.toml:{line}: `{key}`")), "{e}");
+    }
+    // Explicit with mass damping only, and β = 0 written out, stay valid.
+    let explicit = GOOD.replace(
+        "kind = \"implicit-euler\"",
+        "kind = \"explicit\"\nrayleigh_alpha = 2.0\nrayleigh_beta = 0.0",
+    );
+    assert!(SceneConfig::from_toml(&explicit, "ok.toml").is_ok());
+    // A config built in code is checked too when the scene is built.
+    let mut config = SceneConfig::from_toml(&explicit, "ok.toml").unwrap();
+    config.rayleigh_beta = 0.01;
+    let volume = config.procedural_volume().unwrap();
+    let err = Simulation::new(&config, &volume, "code").err().expect("refused");
+    assert!(err.to_string().contains("rayleigh_beta"), "{err}");
+}
+
+#[test]
+fn a_static_scene_solves_with_the_solver_it_names() {
+    let text = GOOD
+        .replace("kind = \"implicit-euler\"", "kind = \"static\"\ncg_tolerance = 1e-10")
+        .replace("voxels = [2, 2, 2]", "voxels = [4, 3, 3]");
+    let solve = |solver: &str| {
+        let config = SceneConfig::from_toml(
+            &text.replace("cg_tolerance", &format!("solver = \"{solver}\"\ncg_tolerance")),
+            "s.toml",
+        )
+        .unwrap();
+        let volume = config.procedural_volume().unwrap();
+        let mut sim = Simulation::new(&config, &volume, "s.toml").unwrap();
+        let frame = sim.step(&StepInputs::default()).unwrap();
+        let iterations = frame.counters.solver_iterations;
+        (frame.positions, iterations)
+    };
+    let (jacobi, jacobi_iterations) = solve("jacobi-cg");
+    let (cholesky, cholesky_iterations) = solve("cholesky");
+    // Both converge to 1e-10 of the load's residual: positions agree far below the sag (~mm).
+    let sag = jacobi.iter().zip(&cholesky).map(|(a, b)| (a[2] - b[2]).abs()).fold(0.0, f64::max);
+    assert!(sag < 1e-9, "jacobi and cholesky differ by {sag:e} m");
+    // The factorisation preconditions: far fewer CG iterations than block-Jacobi.
+    assert!(
+        cholesky_iterations * 3 < jacobi_iterations,
+        "{cholesky_iterations} vs {jacobi_iterations} iterations"
+    );
+    // Nothing held: the stiffness is singular and cannot be factorised. The step falls back to
+    // block-Jacobi, does not converge (a free body under gravity has no equilibrium), and returns.
+    let free = text
+        .replace("[[fixed]]\nplane = \"z\"\nvalue = 0.1\n", "")
+        .replace("cg_tolerance", "solver = \"cholesky\"\ncg_tolerance");
+    let config = SceneConfig::from_toml(&free, "free.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    let mut sim = Simulation::new(&config, &volume, "free.toml").unwrap();
+    let frame = sim.step(&StepInputs::default()).unwrap();
+    assert!(frame.counters.solver_residual > 1e-10, "{:?}", frame.counters);
+}
+
+#[test]
+fn a_step_is_driven_by_its_inputs_and_refuses_bad_ones() {
+    // B1 (gravity and its corner pull) twice: once with a push on a bottom corner, once without.
+    let text = std::fs::read_to_string(scene("b1.toml")).unwrap();
+    let config = SceneConfig::from_toml(&text, "b1.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    let mut pushed = Simulation::new(&config, &volume, "b1.toml").unwrap();
+    let mut still = Simulation::new(&config, &volume, "b1.toml").unwrap();
+    let rest = pushed.model().unwrap().rest.clone();
+    // The bottom corner at x = 0, y = 0 (the top face is held, the pull is at the far corner).
+    let corner = (0..rest.len())
+        .min_by(|&a, &b| {
+            let key = |p: Vec3| p[0] + p[1] + p[2];
+            key(rest[a]).total_cmp(&key(rest[b]))
+        })
+        .unwrap();
+    let push =
+        StepInputs { node_forces: vec![(corner, [0.0, 2.0, 0.0]), (corner, [0.0, 1.0, 0.0])] };
+    let none = StepInputs::default();
+    for _ in 0..20 {
+        let a = pushed.step(&push).unwrap();
+        let b = still.step(&none).unwrap();
+        assert_eq!(a.index, b.index);
+    }
+    let a = pushed.step(&none).unwrap();
+    let b = still.step(&none).unwrap();
+    // 3 N along +y for 20 ms: the corner moved along +y, and only the input made it move so.
+    let dy = a.positions[corner][1] - b.positions[corner][1];
+    assert!(dy > 1e-5, "the pushed corner moved {dy:e} m along y");
+    // The same inputs again give the same bits.
+    let mut again = Simulation::new(&config, &volume, "b1.toml").unwrap();
+    let mut last = None;
+    for _ in 0..20 {
+        last = Some(again.step(&push).unwrap());
+    }
+    let replay = again.step(&none).unwrap();
+    assert_eq!(replay.state_hash, a.state_hash);
+    assert!(last.is_some());
+
+    // Bad inputs are refused with what and where, and take no step.
+    let before = pushed.step(&none).unwrap();
+    let nodes = rest.len();
+    let e = pushed.step(&StepInputs { node_forces: vec![(0, [0.0; 3]), (nodes, [1.0, 0.0, 0.0])] });
+    assert_eq!(e, Err(InputError::NoSuchNode { entry: 1, node: nodes, nodes }));
+    assert!(e.unwrap_err().to_string().contains("node_forces[1]"));
+    let e = pushed.step(&StepInputs { node_forces: vec![(3, [0.0, f64::NAN, 0.0])] }).unwrap_err();
+    assert!(matches!(e, InputError::NotFinite { entry: 0, node: 3, .. }), "{e}");
+    assert!(e.to_string().contains("not finite"), "{e}");
+    let after = pushed.step(&none).unwrap();
+    assert_eq!(after.index, before.index + 1, "a refused step is not counted");
+    assert!(after.positions.iter().flatten().all(|c| c.is_finite()));
 }
 
 #[test]
@@ -244,7 +420,8 @@ fn a_tensor_mass_scene_steps_cuts_and_reports_non_linear_vertices() {
     assert!(a.model().is_none() && a.grid().is_none());
     let mut last = None;
     for _ in 0..200 {
-        let (fa, fb) = (a.step(), b.step());
+        let (fa, fb) =
+            (a.step(&StepInputs::default()).unwrap(), b.step(&StepInputs::default()).unwrap());
         assert_eq!(fa.state_hash, fb.state_hash, "step {}", fa.index);
         assert!(fa.positions.iter().flatten().all(|c| c.is_finite()));
         last = Some(fa);
@@ -260,7 +437,14 @@ fn a_tensor_mass_scene_steps_cuts_and_reports_non_linear_vertices() {
     let bad = incise_grid::GridEdit { remove_voxels: vec![8], sever_links: vec![] };
     assert!(a.cut(&bad).is_err());
     for _ in 0..50 {
-        assert!(a.step().positions.iter().flatten().all(|c| c.is_finite()));
+        assert!(
+            a.step(&StepInputs::default())
+                .unwrap()
+                .positions
+                .iter()
+                .flatten()
+                .all(|c| c.is_finite())
+        );
     }
 }
 
@@ -275,7 +459,7 @@ fn the_liver_tensor_mass_scene_runs() {
         tet.stable_dt
     );
     for _ in 0..20 {
-        let f = sim.step();
+        let f = sim.step(&StepInputs::default()).unwrap();
         assert!(f.positions.iter().flatten().all(|c| c.is_finite()));
     }
 }
@@ -294,7 +478,10 @@ fn label_holds_are_checked() {
     );
     assert!(e.to_string().starts_with("bad.toml:15:"), "and the line: {e}");
     let e = error(&held_by("label = 1\nplane = \"z\"\nvalue = 0.1"));
-    assert!(e.to_string().contains("fixed[0].label") && e.to_string().contains("alone"), "{e}");
+    assert!(
+        e.to_string().starts_with("bad.toml:16: `fixed[0].plane` cannot be given with `label`"),
+        "{e}"
+    );
     // A material the volume does not contain holds nothing: refused when the scene is built.
     let text = held_by("label = 2").replace(
         "[integrator]",
@@ -358,10 +545,10 @@ fn the_liver_hangs_from_its_gallbladder() {
     // filled coarse cell has almost no mass and swings with its cell).
     let mass = sim.model().unwrap().lumped_mass.clone();
     let total: f64 = mass.iter().sum();
-    let first = sim.step().positions.clone();
+    let first = sim.step(&StepInputs::default()).unwrap().positions.clone();
     let mut drop = 0.0;
     for _ in 0..30 {
-        let frame = sim.step();
+        let frame = sim.step(&StepInputs::default()).unwrap();
         assert!(frame.positions.iter().flatten().all(|c| c.is_finite()));
         drop = frame
             .positions
@@ -413,7 +600,7 @@ fn the_mass_matrix_is_a_scene_key() {
     let volume = config.procedural_volume().unwrap();
     let mut sim = Simulation::new(&config, &volume, "t.toml").unwrap();
     for _ in 0..5 {
-        let frame = sim.step();
+        let frame = sim.step(&StepInputs::default()).unwrap();
         assert!(frame.positions.iter().flatten().all(|c| c.is_finite()));
         assert!(frame.counters.solver_residual <= 1e-6, "{:?}", frame.counters);
     }
@@ -434,7 +621,7 @@ fn the_corotational_liver_comes_to_rest_at_level_3() {
     // mass, after 1.5 s under gravity every node is slow and near its rest place.
     let mut sim = load("liver_13k.toml");
     for _ in 0..1500 {
-        sim.step();
+        sim.step(&StepInputs::default()).unwrap();
     }
     let model = sim.model().expect("a hexahedral scene");
     let state = sim.state();
@@ -472,7 +659,9 @@ fn a_cut_that_takes_one_patch_keeps_the_other_pulling() {
     assert!(off(&sim, [1.0, 2.0, 0.0]) < 1e-12);
     sim.cut(&incise_grid::GridEdit { remove_voxels: vec![0], sever_links: vec![] }).unwrap();
     assert!(off(&sim, [0.0, 2.0, 0.0]) < 1e-12, "the second patch still pulls");
-    assert!(sim.step().positions.iter().flatten().all(|c| c.is_finite()));
+    assert!(
+        sim.step(&StepInputs::default()).unwrap().positions.iter().flatten().all(|c| c.is_finite())
+    );
 }
 
 #[test]
@@ -524,7 +713,7 @@ fn non_finite_numbers_and_holds_that_hold_nothing_are_refused() {
 fn an_implicit_step_reports_its_stage_times() {
     let mut sim = load("b1.toml");
     for _ in 0..3 {
-        let c = sim.step().counters;
+        let c = sim.step(&StepInputs::default()).unwrap().counters;
         assert!(c.rotations_ns > 0 && c.solve_ns > 0, "{c:?}");
         assert!(
             c.rotations_ns + c.solve_ns + c.update_ns <= c.step_ns,

@@ -175,8 +175,9 @@ pub fn static_solve(
 /// sparse Cholesky factorisation of the current stiffness (a few iterations instead of thousands
 /// on large bulky meshes; the factorisation costs memory and time up front).
 ///
-/// # Panics
-/// With `cholesky`, if the stiffness is singular on the free nodes (an unsupported fragment).
+/// A stiffness the factorisation finds singular on the free nodes (a piece no hold supports)
+/// falls back to block-Jacobi CG for that Newton step, which then reports `converged: false`
+/// instead of aborting.
 #[allow(clippy::too_many_arguments)] // the static problem is these seven things; a struct adds nothing
 pub fn static_solve_with(
     model: &HexModel,
@@ -238,10 +239,10 @@ pub fn static_solve_with(
         };
         let settings =
             CgSettings { tolerance: forcing.max(1e-14), max_iterations: 20 * model.dof_count() };
-        let report = if let Some(f) = factor.as_mut() {
-            f.factorize(model, ffr, 0.0, 1.0)
-                .expect("the stiffness is positive definite on the free nodes");
-            let f = &*f;
+        if factor.as_mut().is_some_and(|f| f.factorize(model, ffr, 0.0, 1.0).is_err()) {
+            factor = None;
+        }
+        let report = if let Some(f) = factor.as_ref() {
             solve(apply, |r, z| f.solve(r, z), fixed, &r, &mut dx, settings)
         } else {
             let pre = preconditioner(model, ffr, &model.lumped_mass, 0.0, 1.0);

@@ -209,18 +209,18 @@ pub struct SceneConfig {
 #[serde(deny_unknown_fields)]
 struct RawScene {
     name: String,
-    volume: RawVolume,
+    volume: Spanned<RawVolume>,
     #[serde(default)]
     level: Option<Spanned<i64>>,
     #[serde(default)]
-    materials: Vec<RawMaterial>,
+    materials: Vec<Spanned<RawMaterial>>,
     #[serde(default)]
     model: Option<RawModel>,
     integrator: RawIntegrator,
     #[serde(default)]
     gravity: Option<Spanned<[f64; 3]>>,
     #[serde(default)]
-    fixed: Vec<RawFixed>,
+    fixed: Vec<Spanned<RawFixed>>,
     #[serde(default)]
     loads: Vec<RawLoad>,
 }
@@ -230,8 +230,7 @@ struct RawScene {
 struct RawVolume {
     file: Option<String>,
     stride: Option<Spanned<[i64; 3]>>,
-    #[serde(default)]
-    labels: Vec<u16>,
+    labels: Option<Spanned<Vec<u16>>>,
     procedural: Option<Spanned<String>>,
     size_m: Option<Spanned<[f64; 3]>>,
     voxels: Option<Spanned<[i64; 3]>>,
@@ -414,6 +413,26 @@ impl Checker<'_> {
         }
     }
 
+    /// A number in `[lo, hi]`, with its unit in the message.
+    fn within(
+        &self,
+        v: &Spanned<f64>,
+        key: &str,
+        (lo, hi): (f64, f64),
+        unit: &str,
+    ) -> Result<f64, SceneError> {
+        let x = *v.get_ref();
+        if (lo..=hi).contains(&x) {
+            Ok(x)
+        } else {
+            Err(self.invalid(
+                v.span(),
+                key,
+                format!("is {x}; it must be between {lo:e} and {hi:e} {unit}"),
+            ))
+        }
+    }
+
     fn positive(&self, v: &Spanned<f64>, key: &str) -> Result<f64, SceneError> {
         let x = *v.get_ref();
         if x.is_finite() && x > 0.0 {
@@ -435,6 +454,172 @@ impl Checker<'_> {
             Ok(x)
         } else {
             Err(self.invalid(v.span(), key, format!("is {x}; it must be finite and non-negative")))
+        }
+    }
+
+    /// `[volume]`: a file (with its `stride` and `labels`) or a procedural block (with its
+    /// `size_m` and `voxels`); a key of the other kind is refused rather than ignored.
+    fn volume(&self, v: &Spanned<RawVolume>) -> Result<VolumeSpec, SceneError> {
+        let header = v.span();
+        let v = v.get_ref();
+        if let Some(path) = &v.file {
+            let stray = v
+                .procedural
+                .as_ref()
+                .map(|p| (p.span(), "volume.procedural"))
+                .or_else(|| v.size_m.as_ref().map(|p| (p.span(), "volume.size_m")))
+                .or_else(|| v.voxels.as_ref().map(|p| (p.span(), "volume.voxels")));
+            if let Some((span, key)) = stray {
+                return Err(self.invalid(
+                    span,
+                    key,
+                    "describes a procedural volume; it cannot be given together with `volume.file`",
+                ));
+            }
+            let stride = match &v.stride {
+                Some(s) => self.counts(s, "volume.stride", 64)?,
+                None => [1, 1, 1],
+            };
+            let labels = v.labels.as_ref().map(|l| l.get_ref().clone()).unwrap_or_default();
+            return Ok(VolumeSpec::File { path: path.clone(), stride, labels });
+        }
+        let Some(kind) = &v.procedural else {
+            return Err(self.invalid(header, "volume", "needs `file` or `procedural`"));
+        };
+        let stray = v
+            .stride
+            .as_ref()
+            .map(|p| (p.span(), "volume.stride"))
+            .or_else(|| v.labels.as_ref().map(|p| (p.span(), "volume.labels")));
+        if let Some((span, key)) = stray {
+            return Err(self.invalid(
+                span,
+                key,
+                "applies to a volume file; a procedural volume has no stride or labels",
+            ));
+        }
+        if kind.get_ref() != "block" {
+            return Err(self.invalid(
+                kind.span(),
+                "volume.procedural",
+                format!("is \"{}\"; the known volume is \"block\"", kind.get_ref()),
+            ));
+        }
+        let (Some(size), Some(voxels)) = (&v.size_m, &v.voxels) else {
+            return Err(self.invalid(
+                kind.span(),
+                "volume.procedural",
+                "\"block\" needs `size_m` and `voxels`",
+            ));
+        };
+        let s = *size.get_ref();
+        if !s.iter().all(|&x| x.is_finite() && x > 0.0) {
+            return Err(self.invalid(
+                size.span(),
+                "volume.size_m",
+                format!("is {s:?}; every edge must be finite and positive"),
+            ));
+        }
+        Ok(VolumeSpec::Block { size_m: s, voxels: self.counts(voxels, "volume.voxels", 4096)? })
+    }
+
+    /// `[[fixed]]` entry `k`: a `plane` with its `value`, a box (`min` + `max`) or a `label`;
+    /// a key of another kind of region is refused rather than ignored.
+    fn fixed(
+        &self,
+        f: &Spanned<RawFixed>,
+        k: usize,
+        materials: &[MaterialSpec],
+    ) -> Result<FixedSpec, SceneError> {
+        let header = f.span();
+        let f = f.get_ref();
+        let key = |name: &str| format!("fixed[{k}].{name}");
+        if let Some(label) = &f.label {
+            if let Some((span, name)) = f
+                .plane
+                .as_ref()
+                .map(|v| (v.span(), "plane"))
+                .or_else(|| f.value.as_ref().map(|v| (v.span(), "value")))
+                .or_else(|| f.min.as_ref().map(|v| (v.span(), "min")))
+                .or_else(|| f.max.as_ref().map(|v| (v.span(), "max")))
+            {
+                return Err(self.invalid(
+                    span,
+                    &key(name),
+                    "cannot be given with `label`: a fixed region is a `plane`, a box (`min` + `max`) or a `label`",
+                ));
+            }
+            let l = *label.get_ref();
+            if !materials.iter().any(|m| m.label == l) {
+                return Err(self.invalid(
+                    label.span(),
+                    &key("label"),
+                    format!("is {l}, which no `[[materials]]` entry has"),
+                ));
+            }
+            return Ok(FixedSpec::Label { label: l });
+        }
+        if let Some(axis) = &f.plane {
+            if let Some((span, name)) = f
+                .min
+                .as_ref()
+                .map(|v| (v.span(), "min"))
+                .or_else(|| f.max.as_ref().map(|v| (v.span(), "max")))
+            {
+                return Err(self.invalid(
+                    span,
+                    &key(name),
+                    "cannot be given with `plane`: a plane region is `plane` + `value`",
+                ));
+            }
+            let a = match axis.get_ref().as_str() {
+                "x" => 0,
+                "y" => 1,
+                "z" => 2,
+                other => {
+                    return Err(self.invalid(
+                        axis.span(),
+                        &key("plane"),
+                        format!("is \"{other}\"; expected \"x\", \"y\" or \"z\""),
+                    ));
+                }
+            };
+            let Some(value) = &f.value else {
+                return Err(self.invalid(axis.span(), &key("plane"), "needs a `value` (m)"));
+            };
+            return Ok(FixedSpec::Plane { axis: a, value: self.finite(value, &key("value"))? });
+        }
+        if let Some(value) = &f.value {
+            return Err(self.invalid(
+                value.span(),
+                &key("value"),
+                "needs `plane` (the axis the value is a coordinate on)",
+            ));
+        }
+        match (&f.min, &f.max) {
+            (Some(min), Some(max)) => {
+                let lo = self.finite3(min, &key("min"))?;
+                let hi = self.finite3(max, &key("max"))?;
+                if (0..3).any(|a| hi[a] < lo[a]) {
+                    return Err(self.invalid(
+                        max.span(),
+                        &key("max"),
+                        format!("{hi:?} is below `min` {lo:?}"),
+                    ));
+                }
+                Ok(FixedSpec::Box { min: lo, max: hi })
+            }
+            (Some(min), None) => {
+                Err(self.invalid(min.span(), &key("min"), "needs `max`: a box is `min` + `max`"))
+            }
+            (None, Some(max)) => {
+                Err(self.invalid(max.span(), &key("max"), "needs `min`: a box is `min` + `max`"))
+            }
+            (None, None) => Err(self.invalid(
+                header,
+                &format!("fixed[{k}]"),
+                "needs `plane` + `value`, `min` + `max`, or `label`",
+            )),
         }
     }
 
@@ -461,51 +646,7 @@ impl SceneConfig {
             message: e.message().trim().to_owned(),
         })?;
         let c = Checker { text, file };
-        let volume = if let Some(path) = raw.volume.file {
-            if let Some(p) = &raw.volume.procedural {
-                return Err(c.invalid(
-                    p.span(),
-                    "volume.procedural",
-                    "cannot be given together with volume.file",
-                ));
-            }
-            let stride = match &raw.volume.stride {
-                Some(s) => c.counts(s, "volume.stride", 64)?,
-                None => [1, 1, 1],
-            };
-            VolumeSpec::File { path, stride, labels: raw.volume.labels }
-        } else {
-            let Some(kind) = &raw.volume.procedural else {
-                return Err(SceneError::Parse {
-                    file: file.to_owned(),
-                    line: 0,
-                    message: "`volume` needs `file` or `procedural`".into(),
-                });
-            };
-            if kind.get_ref() != "block" {
-                return Err(c.invalid(
-                    kind.span(),
-                    "volume.procedural",
-                    format!("is \"{}\"; the known volume is \"block\"", kind.get_ref()),
-                ));
-            }
-            let (Some(size), Some(voxels)) = (&raw.volume.size_m, &raw.volume.voxels) else {
-                return Err(c.invalid(
-                    kind.span(),
-                    "volume.procedural",
-                    "\"block\" needs `size_m` and `voxels`",
-                ));
-            };
-            let s = *size.get_ref();
-            if !s.iter().all(|&x| x.is_finite() && x > 0.0) {
-                return Err(c.invalid(
-                    size.span(),
-                    "volume.size_m",
-                    format!("is {s:?}; every edge must be finite and positive"),
-                ));
-            }
-            VolumeSpec::Block { size_m: s, voxels: c.counts(voxels, "volume.voxels", 4096)? }
-        };
+        let volume = c.volume(&raw.volume)?;
         let level = match &raw.level {
             Some(l) if !(0..=i64::from(incise_grid::grid::MAX_LEVELS)).contains(l.get_ref()) => {
                 return Err(c.invalid(
@@ -523,7 +664,23 @@ impl SceneConfig {
         };
         let mut materials = Vec::new();
         for (i, m) in raw.materials.iter().enumerate() {
+            let m = m.get_ref();
             let key = |k: &str| format!("materials[{i}].{k}");
+            // Damping is one Rayleigh pair for the scene: the implicit system is a·M + b·K with
+            // two scalars (its matrix-free product and factorisation rely on that), so a value
+            // per tissue would be silently dropped. Refused until per-tissue damping exists.
+            if let Some((span, k)) =
+                m.rayleigh_mass.as_ref().map(|v| (v.span(), "rayleigh_mass")).or_else(|| {
+                    m.rayleigh_stiffness.as_ref().map(|v| (v.span(), "rayleigh_stiffness"))
+                })
+            {
+                return Err(c.invalid(
+                    span,
+                    &key(k),
+                    "is not supported per material yet: damping is set for the whole scene by \
+                     `integrator.rayleigh_alpha` (mass) and `integrator.rayleigh_beta` (stiffness)",
+                ));
+            }
             let label = *m.label.get_ref();
             if !(1..=i64::from(u16::MAX)).contains(&label) {
                 return Err(c.invalid(
@@ -550,28 +707,29 @@ impl SceneConfig {
                 ));
             }
             let material = incise_grid::Material {
-                youngs_modulus: c.positive(&m.youngs_modulus, &key("youngs_modulus"))?,
+                // From a gel (1 Pa) to steel (2e11 Pa) and beyond; outside, the condensed
+                // matrices over- or underflow against the mass.
+                youngs_modulus: c.within(
+                    &m.youngs_modulus,
+                    &key("youngs_modulus"),
+                    (1e-3, 1e13),
+                    "Pa",
+                )?,
                 poisson_ratio: nu,
-                density: c.positive(&m.density, &key("density"))?,
-                rayleigh_mass: c.non_negative(
-                    m.rayleigh_mass.as_ref(),
-                    &key("rayleigh_mass"),
-                    0.0,
-                )?,
-                rayleigh_stiffness: c.non_negative(
-                    m.rayleigh_stiffness.as_ref(),
-                    &key("rayleigh_stiffness"),
-                    0.0,
-                )?,
+                // Lighter than air to denser than osmium (22,590 kg/m³).
+                density: c.within(&m.density, &key("density"), (1e-3, 1e5), "kg/m³")?,
+                rayleigh_mass: 0.0,
+                rayleigh_stiffness: 0.0,
             };
             materials.push(MaterialSpec { label: label as u16, material });
         }
         if materials.is_empty() {
-            return Err(SceneError::Parse {
-                file: file.to_owned(),
-                line: 0,
-                message: "the scene has no `[[materials]]`".into(),
-            });
+            // Like serde's own "missing field" errors, a missing table is reported at line 1.
+            return Err(c.invalid(
+                0..0,
+                "materials",
+                "is missing: the scene needs at least one `[[materials]]` entry",
+            ));
         }
         let mut auto_level = None;
         let mut tensor_mass = None;
@@ -731,69 +889,34 @@ impl SceneConfig {
                 }
             },
         };
+        if integrator == IntegratorKind::Explicit {
+            // An explicit step has no linear solve; and stiffness-proportional damping would cap
+            // its stable step near 2/(β ω²) (ω the mesh's highest frequency): microseconds here.
+            if let Some((span, key, why)) = i
+                .solver
+                .as_ref()
+                .map(|v| (v.span(), "integrator.solver", "an explicit step solves no linear system"))
+                .or_else(|| {
+                    i.cg_tolerance.as_ref().map(|v| {
+                        (v.span(), "integrator.cg_tolerance", "an explicit step solves no linear system")
+                    })
+                })
+                .or_else(|| {
+                    i.rayleigh_beta.as_ref().filter(|b| *b.get_ref() != 0.0).map(|v| {
+                        (
+                            v.span(),
+                            "integrator.rayleigh_beta",
+                            "(stiffness damping) would cap an explicit step near 2/(β·ω²) for the mesh's highest frequency ω; use `rayleigh_alpha` or `kind = \"implicit-euler\"`",
+                        )
+                    })
+                })
+            {
+                return Err(c.invalid(span, key, format!("does not apply to `integrator.kind = \"explicit\"`: {why}")));
+            }
+        }
         let mut fixed = Vec::new();
         for (k, f) in raw.fixed.iter().enumerate() {
-            if let Some(label) = &f.label {
-                if f.plane.is_some() || f.min.is_some() || f.max.is_some() {
-                    return Err(c.invalid(
-                        label.span(),
-                        &format!("fixed[{k}].label"),
-                        "goes alone: a fixed region is a `plane`, a box (`min` + `max`) or a `label`",
-                    ));
-                }
-                let l = *label.get_ref();
-                if !materials.iter().any(|m| m.label == l) {
-                    return Err(c.invalid(
-                        label.span(),
-                        &format!("fixed[{k}].label"),
-                        format!("is {l}, which no `[[materials]]` entry has"),
-                    ));
-                }
-                fixed.push(FixedSpec::Label { label: l });
-            } else if let Some(axis) = &f.plane {
-                let a = match axis.get_ref().as_str() {
-                    "x" => 0,
-                    "y" => 1,
-                    "z" => 2,
-                    other => {
-                        return Err(c.invalid(
-                            axis.span(),
-                            &format!("fixed[{k}].plane"),
-                            format!("is \"{other}\"; expected \"x\", \"y\" or \"z\""),
-                        ));
-                    }
-                };
-                let Some(value) = &f.value else {
-                    return Err(c.invalid(
-                        axis.span(),
-                        &format!("fixed[{k}].plane"),
-                        "needs a `value` (m)",
-                    ));
-                };
-                fixed.push(FixedSpec::Plane {
-                    axis: a,
-                    value: c.finite(value, &format!("fixed[{k}].value"))?,
-                });
-            } else if let (Some(min), Some(max)) = (&f.min, &f.max) {
-                let min = c.finite3(min, &format!("fixed[{k}].min"))?;
-                let hi = c.finite3(max, &format!("fixed[{k}].max"))?;
-                if (0..3).any(|a| hi[a] < min[a]) {
-                    return Err(c.invalid(
-                        max.span(),
-                        &format!("fixed[{k}].max"),
-                        format!("{hi:?} is below `min` {min:?}"),
-                    ));
-                }
-                fixed.push(FixedSpec::Box { min, max: hi });
-            } else {
-                return Err(SceneError::Parse {
-                    file: file.to_owned(),
-                    line: 0,
-                    message: format!(
-                        "fixed[{k}] needs `plane` + `value`, `min` + `max`, or `label`"
-                    ),
-                });
-            }
+            fixed.push(c.fixed(f, k, &materials)?);
         }
         let mut loads = Vec::new();
         for (k, l) in raw.loads.iter().enumerate() {

@@ -6,7 +6,9 @@
 
 pub mod calibration;
 pub mod config;
+#[cfg(test)]
+mod config_fuzz;
 pub mod simulation;
 
 pub use config::{SceneConfig, SceneError};
-pub use simulation::{Frame, Simulation, StageCounters};
+pub use simulation::{Frame, InputError, Simulation, StageCounters, StepInputs};

@@ -9,7 +9,7 @@ use crate::config::{
 };
 use incise_fem::cg::CgSettings;
 use incise_fem::integrate::{
-    BackwardEuler, Loads, Rayleigh, State, explicit_step, stable_dt, static_solve,
+    BackwardEuler, Loads, Rayleigh, State, explicit_step, stable_dt, static_solve_with,
 };
 use incise_fem::tet::element::Fibre;
 use incise_fem::tet::explicit::CentralDifference;
@@ -44,6 +44,42 @@ pub struct StageCounters {
     pub nonlinear_vertices: usize,
 }
 
+/// What drives one step from outside the scene (a haptic tool's contact, a script, a test):
+/// forces that act during this step only, on top of the scene's gravity and patch loads.
+/// `StepInputs::default()` drives nothing.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepInputs {
+    /// `(node, force)`: a force (N, grid frame) on a model node (a hexahedral node, or a
+    /// tensor-mass vertex), in the model's node order as of this step (a cut renumbers them).
+    /// Several forces on one node add up; a force on a fixed node is held by the fixture.
+    pub node_forces: Vec<(usize, Vec3)>,
+}
+
+/// Inputs [`Simulation::step`] refused; the step was not taken and the state is unchanged.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum InputError {
+    /// A force on a node the model does not have.
+    #[error("node_forces[{entry}]: node {node} does not exist (the model has {nodes} nodes)")]
+    NoSuchNode {
+        /// Index into `node_forces`.
+        entry: usize,
+        /// The node named.
+        node: usize,
+        /// Nodes in the model.
+        nodes: usize,
+    },
+    /// A force with a NaN or infinite component.
+    #[error("node_forces[{entry}]: the force {force:?} N on node {node} is not finite")]
+    NotFinite {
+        /// Index into `node_forces`.
+        entry: usize,
+        /// The node named.
+        node: usize,
+        /// The force given.
+        force: Vec3,
+    },
+}
+
 /// The result of one step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Frame {
@@ -68,8 +104,11 @@ enum Integrator {
         alpha: f64,
         stable_dt: std::cell::Cell<Option<f64>>,
     },
+    /// `cholesky`: each Newton step's CG preconditioned by a factorisation of the stiffness
+    /// (`integrator.solver = "cholesky"` or `"cholesky-cg"`), else block-Jacobi.
     Static {
         tolerance: f64,
+        cholesky: bool,
     },
 }
 
@@ -286,6 +325,13 @@ impl Simulation {
             None => None,
         };
         let config = &config;
+        if config.integrator == IntegratorKind::Explicit && config.rayleigh_beta != 0.0 {
+            // A config built in code skips the file check; the explicit steps have no β term.
+            return Err(build(format!(
+                "integrator.rayleigh_beta = {} does not apply to the explicit integrator (only rayleigh_alpha does)",
+                config.rayleigh_beta
+            )));
+        }
         if let (ModelKind::TensorMass, Some(spec)) = (config.model, config.tensor_mass) {
             let (body, fixed) = tet_body(config, &spec, &volume, &table).map_err(build)?;
             let state =
@@ -343,7 +389,10 @@ impl Simulation {
                     stable_dt: std::cell::Cell::new(Some(limit)),
                 }
             }
-            IntegratorKind::Static => Integrator::Static { tolerance: config.cg_tolerance },
+            IntegratorKind::Static => Integrator::Static {
+                tolerance: config.cg_tolerance,
+                cholesky: config.solver != incise_fem::integrate::LinearSolver::JacobiCg,
+            },
         };
         let state = State::at_rest(&model);
         Ok(Self {
@@ -356,9 +405,32 @@ impl Simulation {
         })
     }
 
-    /// Advances one step.
-    pub fn step(&mut self) -> Frame {
+    /// Advances one step, driven by `inputs`; refuses them (and takes no step) if a force is
+    /// not finite or names a node the model does not have.
+    pub fn step(&mut self, inputs: &StepInputs) -> Result<Frame, InputError> {
         let start = Instant::now();
+        let nodes = self.state.x.len();
+        for (entry, &(node, force)) in inputs.node_forces.iter().enumerate() {
+            if node >= nodes {
+                return Err(InputError::NoSuchNode { entry, node, nodes });
+            }
+            if !force.iter().all(|c| c.is_finite()) {
+                return Err(InputError::NotFinite { entry, node, force });
+            }
+        }
+        // The scene's own nodal loads plus this step's forces (none: the scene's, not copied).
+        let with_inputs = |scene: &[Vec3]| -> Option<Vec<Vec3>> {
+            if inputs.node_forces.is_empty() {
+                return None;
+            }
+            let mut f = if scene.is_empty() { vec![[0.0; 3]; nodes] } else { scene.to_vec() };
+            for &(node, force) in &inputs.node_forces {
+                for k in 0..3 {
+                    f[node][k] += force[k];
+                }
+            }
+            Some(f)
+        };
         let mut counters = StageCounters::default();
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
@@ -367,28 +439,27 @@ impl Simulation {
                     counters.nonlinear_vertices =
                         tet.force_field.update_adaptive(&tet.model, &tet.topology, &self.state.x);
                 }
+                let external = with_inputs(&tet.external);
                 tet.integrator.step(
                     &tet.model,
                     &tet.topology,
                     &tet.force_field,
                     tet.penalty.as_ref(),
                     &self.fixed,
-                    &tet.external,
+                    external.as_deref().unwrap_or(&tet.external),
                     &mut self.state.x,
                 );
                 self.state.v = tet.integrator.velocities(&self.state.x);
-                return self.finish(start, counters);
+                return Ok(self.finish(start, counters));
             }
         };
+        let driven =
+            with_inputs(&hex.loads.nodal).map(|nodal| Loads { gravity: hex.loads.gravity, nodal });
+        let loads = driven.as_ref().unwrap_or(&hex.loads);
         match &mut hex.integrator {
             Integrator::Implicit(be) => {
-                let r = be.step(
-                    &hex.model,
-                    &mut hex.force_field,
-                    &self.fixed,
-                    &hex.loads,
-                    &mut self.state,
-                );
+                let r =
+                    be.step(&hex.model, &mut hex.force_field, &self.fixed, loads, &mut self.state);
                 counters.solver_iterations = r.iterations;
                 counters.solver_residual = r.relative_residual;
                 let t = be.stage_times;
@@ -400,27 +471,28 @@ impl Simulation {
                     &hex.model,
                     &mut hex.force_field,
                     &self.fixed,
-                    &hex.loads,
+                    loads,
                     *alpha,
                     *dt,
                     &mut self.state,
                 );
             }
-            Integrator::Static { tolerance } => {
-                let r = static_solve(
+            Integrator::Static { tolerance, cholesky } => {
+                let r = static_solve_with(
                     &hex.model,
                     &mut hex.force_field,
                     &self.fixed,
-                    &hex.loads,
+                    loads,
                     &mut self.state.x,
                     *tolerance,
                     50,
+                    *cholesky,
                 );
                 counters.solver_iterations = r.cg_iterations;
                 counters.solver_residual = r.relative_residual;
             }
         }
-        self.finish(start, counters)
+        Ok(self.finish(start, counters))
     }
 
     fn finish(&mut self, start: Instant, mut counters: StageCounters) -> Frame {

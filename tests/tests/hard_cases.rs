@@ -47,7 +47,8 @@ fn max_displacement(model: &HexModel, x: &[Vec3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Runs `steps` implicit steps; asserts finiteness and an energy bound every step; returns the state.
+/// Runs `steps` implicit steps; asserts finiteness and an energy bound every step; returns the
+/// state and the largest node displacement seen at any step.
 fn run(
     model: &HexModel,
     formulation: Formulation,
@@ -56,7 +57,7 @@ fn run(
     dt: f64,
     steps: usize,
     state: Option<State>,
-) -> State {
+) -> (State, f64) {
     let mut ff = HexForceField::new(model, formulation);
     let mut state = state.unwrap_or_else(|| State::at_rest(model));
     let mut be = BackwardEuler::new(
@@ -70,6 +71,7 @@ fn run(
     let work =
         f_ext.iter().map(|f| (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt()).sum::<f64>() * 0.2;
     let initial = ff.energy(model, &state.x) + kinetic(model, &state);
+    let mut peak = 0.0f64;
     for step in 0..steps {
         be.step(model, &mut ff, fixed, loads, &mut state);
         assert!(finite(&state), "non-finite state at step {step}");
@@ -79,8 +81,9 @@ fn run(
             "energy {e:e} J at step {step} exceeds the bound {:e} J",
             10.0 * (initial + work)
         );
+        peak = peak.max(max_displacement(model, &state.x));
     }
-    state
+    (state, peak)
 }
 
 #[test]
@@ -88,7 +91,7 @@ fn b1_and_b2_at_10_ms_are_stable() {
     for cells in [[7, 5, 4], [11, 8, 6]] {
         let model = block_model(cells, soft());
         let fixed = FixedNodes::plane(&model.rest, 2, BLOCK[2], 1e-9);
-        let state =
+        let (state, _) =
             run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 300, None);
         // Settled: the block hangs still.
         assert!(
@@ -104,7 +107,8 @@ fn b3_at_10_ms_stays_bounded() {
     let model = block_model([22, 15, 12], soft());
     let fixed = FixedNodes::plane(&model.rest, 2, BLOCK[2], 1e-9);
     // One simulated second: the block swings down and back at least once.
-    let state = run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 100, None);
+    let (state, _) =
+        run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 100, None);
     assert!(max_displacement(&model, &state.x) < BLOCK[2], "B3 moved more than its height");
 }
 
@@ -126,7 +130,8 @@ fn block_fixed_at_its_bottom_sags_without_collapsing() {
         .map(|(p, q)| p[2] - q[2])
         .fold(0.0, f64::max);
     assert!(top_drop > 1e-3 && top_drop < 0.25 * BLOCK[2], "top drops {top_drop:e} m");
-    let state = run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 200, None);
+    let (state, _) =
+        run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 200, None);
     assert!(max_displacement(&model, &state.x) < 0.25 * BLOCK[2]);
 }
 
@@ -134,7 +139,8 @@ fn block_fixed_at_its_bottom_sags_without_collapsing() {
 fn nearly_incompressible_material_is_stable_and_keeps_its_volume() {
     let model = block_model([7, 5, 4], Material::new(3e3, 0.49, 1000.0));
     let fixed = FixedNodes::plane(&model.rest, 2, BLOCK[2], 1e-9);
-    let state = run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 200, None);
+    let (state, _) =
+        run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 200, None);
     let change = (volume(&model, &state.x) - volume(&model, &model.rest)).abs()
         / volume(&model, &model.rest);
     assert!(change < 0.01, "ν = 0.49 changed the volume by {:.2} %", change * 100.0);
@@ -188,7 +194,7 @@ fn inverted_corner_recovers_after_release() {
         orientation(&state.x) * orientation(&model.rest) < 0.0,
         "the press must invert the corner element"
     );
-    let state = run(
+    let (state, _) = run(
         &model,
         Formulation::Corotational,
         &fixed,
@@ -218,8 +224,14 @@ fn hundredfold_stiffness_contrast_solves_and_stays_stable() {
     let mut x = model.rest.clone();
     let report = static_solve(&model, &mut ff, &fixed, &Loads::gravity(G), &mut x, 1e-8, 100);
     assert!(report.converged, "{report:?}");
-    let state = run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 100, None);
-    assert!(max_displacement(&model, &state.x) < 0.1);
+    let settled = max_displacement(&model, &x);
+    let (_, peak) =
+        run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 100, None);
+    // Gravity switched on at rest overshoots the static sag by at most 2× (a suddenly applied
+    // load on a damped linear system); more would mean the contrast injected energy.
+    println!("100× contrast: static sag {settled:.3e} m, dynamic peak {peak:.3e} m");
+    assert!(settled > 1e-4, "the tissue must sag: {settled:e} m");
+    assert!(peak <= 2.0 * settled, "peak {peak:e} m against the static {settled:e} m");
 }
 
 #[test]
@@ -239,7 +251,7 @@ fn sudden_fifty_newton_pull_then_release() {
     for &n in &patch {
         nodal[n] = [50.0 / patch.len() as f64, 0.0, 0.0];
     }
-    let pulled = run(
+    let (pulled, _) = run(
         &model,
         Formulation::Corotational,
         &fixed,
@@ -248,7 +260,7 @@ fn sudden_fifty_newton_pull_then_release() {
         50,
         None,
     );
-    let released = run(
+    let (released, _) = run(
         &model,
         Formulation::Corotational,
         &fixed,
@@ -277,7 +289,7 @@ fn quarter_twist_of_the_fixed_face_keeps_the_volume_bounded() {
             state.x[n] = [centre[0] - dy, centre[1] + dx, p[2]];
         }
     }
-    let state = run(
+    let (state, _) = run(
         &model,
         Formulation::Corotational,
         &fixed,
@@ -315,14 +327,27 @@ fn free_fragment_keeps_its_momentum_and_does_not_drift() {
         })
     };
     let c0 = centre(&state.x);
-    for _ in 0..300 {
+    // No external force and only damping: the energy (elastic + kinetic) can only fall. The
+    // linearised step holds each rotation through the step, so allow it a rounding's rise.
+    let energy =
+        |ff: &HexForceField, state: &State| ff.energy(&model, &state.x) + kinetic(&model, state);
+    let initial = energy(&ff, &state);
+    let mut last = initial;
+    for step in 0..300 {
         be.step(&model, &mut ff, &fixed, &Loads::gravity([0.0; 3]), &mut state);
         assert!(finite(&state));
+        let e = energy(&ff, &state);
+        assert!(
+            e <= last * (1.0 + 1e-9) + 1e-15,
+            "energy rose from {last:e} to {e:e} J at step {step}"
+        );
+        last = e;
         let p: Vec3 = std::array::from_fn(|a| {
             state.v.iter().zip(&model.lumped_mass).map(|(v, m)| v[a] * m).sum::<f64>()
         });
         assert!(p.iter().all(|c| c.abs() < 1e-10 * mass), "momentum {p:?}");
     }
+    assert!(last < 0.01 * initial, "the deformation did not decay: {last:e} of {initial:e} J");
     let c1 = centre(&state.x);
     assert!(
         (0..3).all(|a| (c1[a] - c0[a]).abs() < 1e-9),
@@ -343,8 +368,25 @@ fn nearly_empty_elements_stay_stable() {
         model.elements.len()
     );
     let fixed = FixedNodes::plane(&model.rest, 0, 0.0, 1e-9);
-    let state = run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 200, None);
-    assert!(max_displacement(&model, &state.x) < 0.05);
+    let mut ff = HexForceField::new(&model, Formulation::Corotational);
+    let mut x = model.rest.clone();
+    let report = static_solve(&model, &mut ff, &fixed, &Loads::gravity(G), &mut x, 1e-9, 100);
+    assert!(report.converged, "{report:?}");
+    let settled = max_displacement(&model, &x);
+    let (state, peak) =
+        run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 200, None);
+    // The one-voxel cell's far corners weigh almost nothing: they must follow the block, not fly
+    // off. The peak stays within the 2× overshoot of a suddenly applied load, and after 2 s the
+    // block (the nearly empty cell included) is back near its static sag.
+    assert!(peak <= 2.0 * settled, "peak {peak:e} m against the static {settled:e} m");
+    let off = state
+        .x
+        .iter()
+        .zip(&x)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    println!("nearly empty: static sag {settled:.3e} m, peak {peak:.3e} m, off at 2 s {off:.3e} m");
+    assert!(off < 0.1 * settled, "2 s in, {off:e} m from the static answer ({settled:e} m sag)");
 }
 
 #[test]
@@ -357,28 +399,48 @@ fn cutting_while_moving_keeps_the_simulation_sound() {
     let mut sim = incise_sim::Simulation::new(&config, &volume, "b1.toml").unwrap();
     let dims = sim.grid().expect("a hexahedral scene").fine().dims();
     let elements_before = sim.model().expect("a hexahedral scene").elements.len();
+    let mass = sim.model().expect("a hexahedral scene").total_mass();
+    // Energy bound: everything gravity and the 0.5 N pull could release by moving the block its
+    // own height (a generous ceiling; the motion here stays far below it).
+    let bound = (mass * 9.81 + 0.5) * BLOCK[2];
+    let kinetic_now = |sim: &incise_sim::Simulation| {
+        let model = sim.model().expect("a hexahedral scene");
+        kinetic(model, sim.state())
+    };
     let mut removed = 0;
-    for step in 0..60u32 {
+    let mut peak = 0.0f64;
+    let mut kinetic_at_last_cut = 0.0;
+    for step in 0..160u32 {
         let frame = sim.step(&incise_sim::StepInputs::default()).unwrap();
         assert!(frame.positions.iter().all(|p| p.iter().all(|c| c.is_finite())), "step {step}");
+        let k = kinetic_now(&sim);
+        assert!(k <= bound, "kinetic energy {k:e} J above {bound:e} J at step {step}");
+        peak = peak.max(k);
         if step % 4 == 0 && step < 48 {
-            // A blade walking along x through the middle of the block, one voxel column per cut.
-            let x = 1 + step / 4 % (dims[0] - 2);
-            let column: Vec<u32> = (0..dims[2] - 1)
-                .flat_map(|z| (1..dims[1] - 1).map(move |y| x + dims[0] * (y + dims[1] * z)))
-                .collect();
+            // Twelve different vertical columns (x, y) under the held top layer, one per cut,
+            // while the block swings: every cut removes material that is still there.
+            let cut = step / 4;
+            let (x, y) = (1 + cut % 5, 1 + (cut / 5) % 3);
+            let column: Vec<u32> =
+                (0..dims[2] - 1).map(|z| x + dims[0] * (y + dims[1] * z)).collect();
             let changes =
                 sim.cut(&GridEdit { remove_voxels: column, sever_links: vec![] }).unwrap();
+            assert_eq!(changes.voxels_removed as u32, dims[2] - 1, "cut {cut} at ({x}, {y})");
             removed += changes.voxels_removed;
             assert_eq!(sim.model().expect("a hexahedral scene").node_count(), sim.state().x.len());
+            kinetic_at_last_cut = kinetic_now(&sim);
         }
     }
-    assert!(
-        removed > 0 && sim.model().expect("a hexahedral scene").elements.len() < elements_before,
-        "the cuts removed material"
-    );
+    assert_eq!(removed, 12 * (dims[2] as usize - 1));
+    assert!(sim.model().expect("a hexahedral scene").elements.len() < elements_before);
     let moved = max_displacement(sim.model().expect("a hexahedral scene"), &sim.state().x);
-    assert!(moved < 0.1, "the cut block moved {moved:e} m");
+    let settled = kinetic_now(&sim);
+    println!(
+        "cutting while moving: peak kinetic {peak:.3e} J (bound {bound:.3e} J), {kinetic_at_last_cut:.3e} J after the last cut, {settled:.3e} J 1.1 s later; largest displacement {moved:.3e} m"
+    );
+    // Damped and no longer cut, the block comes to rest hanging from the held layer.
+    assert!(settled < 1e-3 * peak, "still moving: {settled:e} J of a {peak:e} J peak");
+    assert!(moved < 0.5 * BLOCK[2], "the cut block moved {moved:e} m");
 }
 
 /// Every field of two models, compared bit for bit.

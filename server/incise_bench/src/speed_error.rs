@@ -11,7 +11,8 @@
 //! Newton iteration does not converge at level 0). A solver that stopped short would show in that value, and a run
 //! that never settles reports no error. The static answer of the row's own mesh and model is
 //! reported beside it (`error_static`). A row is stable when its run stays finite and bounded.
-//! Speed is steps per second of the integrator alone, median/min/max over `--repeats` runs.
+//! Speed is steps per second of the integrator alone, median/min/max over `--repeats` runs, each
+//! lasting about `--run-seconds` after `--warmup-steps` untimed steps (as the peers' scripts time).
 
 use crate::timing::measure;
 use anyhow::{Context, bail};
@@ -37,9 +38,16 @@ pub struct SpeedErrorArgs {
     /// Skip meshes with more elements than this (quick runs).
     #[arg(long)]
     max_elements: Option<usize>,
-    /// Timed steps per run.
+    /// Timed steps per run, at least: a fast row runs more, so that one run lasts about
+    /// `--run-seconds` (as the peers' scripts choose their step counts).
     #[arg(long, default_value_t = 50)]
     steps: usize,
+    /// Wall time one timed run aims at (s); its step count is chosen from a short trial.
+    #[arg(long, default_value_t = 0.25)]
+    run_seconds: f64,
+    /// Untimed steps before the timed runs of a row (the peers' scripts warm up too).
+    #[arg(long, default_value_t = 20)]
+    warmup_steps: usize,
     /// Timed runs per row (median, min and max are reported).
     #[arg(long, default_value_t = 5)]
     repeats: usize,
@@ -479,6 +487,25 @@ fn stepper(
     }
 }
 
+/// Takes `--warmup-steps` untimed steps, then a short trial, and returns the step count of one
+/// timed run: enough to last about `--run-seconds`, at least `--steps`, at most 100,000. The
+/// peers' scripts (`../shared/peers/scenes.py`: `pick_steps`, `time_runs`) time the same way, so
+/// neither side's figure carries first-step costs (allocation, page faults, the first solves'
+/// empty history) the other does not.
+fn warm_up(args: &SpeedErrorArgs, mut step: impl FnMut()) -> usize {
+    for _ in 0..args.warmup_steps {
+        step();
+    }
+    let trial = 10;
+    let start = std::time::Instant::now();
+    for _ in 0..trial {
+        step();
+    }
+    let per_step = start.elapsed().as_secs_f64() / trial as f64;
+    let wanted = (args.run_seconds / per_step.max(1e-9)).ceil();
+    (wanted.min(1e5) as usize).max(args.steps)
+}
+
 /// What a row's own run from rest found.
 struct Run {
     /// Every value stayed finite and the material's motion bounded.
@@ -659,18 +686,20 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                         _ => run_until_settled(case, formulation, scheme, dt, args),
                     };
                     let ok = outcome.stable;
-                    let (timing, ()) = if ok {
+                    let (timing, steps) = if ok {
                         let mut step = stepper(case, formulation, scheme, dt);
                         let mut state = State::at_rest(&case.model);
-                        measure(
+                        let steps = warm_up(args, || step(&mut state));
+                        let (timing, ()) = measure(
                             args.repeats,
                             || (),
                             |()| {
-                                for _ in 0..args.steps {
+                                for _ in 0..steps {
                                     step(&mut state);
                                 }
                             },
-                        )
+                        );
+                        (timing, steps)
                     } else {
                         (
                             crate::timing::Timing {
@@ -679,12 +708,11 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                                 max_ms: f64::INFINITY,
                                 repeats: 0,
                             },
-                            (),
+                            0,
                         )
                     };
-                    let rate = |ms: f64| {
-                        if ms.is_finite() { args.steps as f64 / (ms * 1e-3) } else { 0.0 }
-                    };
+                    let rate =
+                        |ms: f64| if ms.is_finite() { steps as f64 / (ms * 1e-3) } else { 0.0 };
                     let (integrator, solver) = scheme_names(scheme);
                     rows.push(Row {
                         scene: case.scene.clone(),
@@ -719,6 +747,10 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
     print_table(&rows);
+    println!(
+        "timing: hexahedral rows take {} untimed steps, then {} runs of at least {} steps lasting about {} s each (median, min, max); from the same state on",
+        args.warmup_steps, args.repeats, args.steps, args.run_seconds
+    );
     println!();
     println!(
         "explicit stable dt per mesh (rest stiffness; an explicit row runs only at or below it):"

@@ -127,6 +127,8 @@ fn speed_error_report_writes_table_csv_png_and_json() {
             "1",
         ])
         .args(["--stable-seconds", "0.02", "--settle-seconds", "3", "--max-error", "0.5"])
+        // Short timed runs keep the debug build quick (the report's default aims at 0.25 s).
+        .args(["--run-seconds", "0", "--warmup-steps", "1"])
         .args(["--json", "--csv"])
         .arg(&csv)
         .arg("--png")
@@ -177,6 +179,7 @@ fn speed_error_compares_measured_peers_at_equal_error() {
         .args(["speed-error", "--scene", "b1", "--steps", "2", "--repeats", "1"])
         // A coarse reference keeps the debug build quick; the comparison logic is the same.
         .args(["--reference-cells", "11,8,6", "--settle-seconds", "8"])
+        .args(["--run-seconds", "0", "--warmup-steps", "1"])
         .args(["--stable-seconds", "0.02", "--json", "--peers"])
         .arg(&table)
         .output()

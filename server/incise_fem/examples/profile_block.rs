@@ -83,11 +83,16 @@ fn main() {
     let mut state = State::at_rest(&model);
     let start = std::time::Instant::now();
     let mut iterations = 0;
+    let mut stages = [0u64; 3];
     for _ in 0..steps {
         if scheme == "explicit" {
             explicit_step(&model, &mut ff, &fixed, &loads, damping.alpha, dt, &mut state);
         } else {
             iterations += be.step(&model, &mut ff, &fixed, &loads, &mut state).iterations;
+            let t = be.stage_times;
+            for (s, v) in stages.iter_mut().zip([t.rotations_ns, t.solve_ns, t.update_ns]) {
+                *s += v;
+            }
         }
     }
     let s = start.elapsed().as_secs_f64();
@@ -116,4 +121,13 @@ fn main() {
         iterations as f64 / steps as f64,
         be.factorizations
     );
+    if scheme != "explicit" {
+        let per = |ns: u64| ns as f64 * 1e-3 / steps as f64;
+        println!(
+            "stages per step: rotations {:.1} µs, right-hand side and solve {:.1} µs, update {:.1} µs",
+            per(stages[0]),
+            per(stages[1]),
+            per(stages[2])
+        );
+    }
 }

@@ -99,6 +99,9 @@ fn gradient_at(xi: Vec3, s: Vec3) -> [Vec3; 8] {
     })
 }
 
+/// Permuted stiffness matrices (and their Walsh forms) by the model matrix they were made from.
+type Shared = std::collections::HashMap<*const Mat24, (Arc<Mat24>, Option<Arc<Walsh>>)>;
+
 /// An element's rotation, as the quaternion the next extraction starts from and as a matrix.
 #[derive(Clone, Copy, Debug)]
 struct Frame {
@@ -123,19 +126,21 @@ impl HexForceField {
     /// A force field for `model`, all rotations at identity.
     #[must_use]
     pub fn new(model: &HexModel, formulation: Formulation) -> Self {
+        Self::with_known(model, formulation, Shared::new())
+    }
+
+    /// [`Self::new`] reusing the permuted matrices in `known` (by the model matrix they came
+    /// from) and computing only the others.
+    fn with_known(model: &HexModel, formulation: Formulation, mut known: Shared) -> Self {
         let s = model.element_size;
         let centre_gradient = gradient_at([0.5; 3], s);
         // One permuted copy per shared matrix, so the pairs of the element passes still find
         // their neighbours' matrix the same.
-        let mut permuted: std::collections::HashMap<
-            *const Mat24,
-            (Arc<Mat24>, Option<Arc<Walsh>>),
-        > = std::collections::HashMap::new();
         let (stiffness, walsh) = model
             .elements
             .iter()
             .map(|el| {
-                let (k, w) = permuted.entry(Arc::as_ptr(&el.stiffness)).or_insert_with(|| {
+                let (k, w) = known.entry(Arc::as_ptr(&el.stiffness)).or_insert_with(|| {
                     let k = component_major(&el.stiffness);
                     let w = Walsh::of(&k).map(Arc::new);
                     (Arc::new(k), w)
@@ -170,7 +175,22 @@ impl HexForceField {
         by_grid.sort_unstable();
         let find =
             |g: u32| by_grid.binary_search_by_key(&g, |&(id, _)| id).ok().map(|k| by_grid[k].1);
-        let mut out = Self::new(new_model, self.formulation);
+        // Elements the edit left alone keep their model matrix (the same `Arc`, see
+        // `HexModel::updated`), so their permuted copies carry over; only the re-condensed ones
+        // are permuted again. The old model is alive here, so no new matrix can reuse the
+        // address of an old one.
+        let known: Shared = old_model
+            .elements
+            .iter()
+            .enumerate()
+            .map(|(j, el)| {
+                (
+                    Arc::as_ptr(&el.stiffness),
+                    (Arc::clone(&self.stiffness[j]), self.walsh[j].clone()),
+                )
+            })
+            .collect();
+        let mut out = Self::with_known(new_model, self.formulation, known);
         for (i, e) in new_model.elements.iter().enumerate() {
             let old = match origin(e.grid_id) {
                 Some(o) => find(o),
@@ -565,6 +585,48 @@ mod tests {
         table.insert(TUMOUR, Material::new(3e4, 0.45, 1000.0));
         let grid = BranchedGrid::build(&ellipsoid_with_inclusion(20, 2e-3), &table, 2).unwrap();
         HexModel::from_grid(&grid)
+    }
+
+    #[test]
+    fn a_cut_field_equals_a_new_one_and_reuses_what_the_cut_left_alone() {
+        let mut table = MaterialTable::new();
+        table.insert(TISSUE, Material::new(3e3, 0.45, 1000.0));
+        table.insert(TUMOUR, Material::new(3e4, 0.45, 1000.0));
+        let mut grid = BranchedGrid::build(&ellipsoid_with_inclusion(20, 2e-3), &table, 2).unwrap();
+        let model = HexModel::from_grid(&grid);
+        let ff = HexForceField::new(&model, Formulation::Corotational);
+        let dims = grid.fine().dims();
+        // A slab of voxels through the middle: re-condenses the cells it crosses, splits some.
+        let x = dims[0] as u32 / 2;
+        let remove: Vec<u32> = (0..dims[2] as u32)
+            .flat_map(|z| (0..dims[1] as u32).map(move |y| (x, y, z)))
+            .map(|(x, y, z)| x + dims[0] as u32 * (y + dims[1] as u32 * z))
+            .collect();
+        let changes = grid
+            .apply(&incise_grid::GridEdit { remove_voxels: remove, sever_links: vec![] })
+            .unwrap();
+        let cut = model.updated(&grid, &changes);
+        let remapped = ff.remapped(&model, &cut, |_| None);
+        let fresh = HexForceField::new(&cut, Formulation::Corotational);
+        let bits = |k: &Mat24| k.0.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let (mut reused, mut made) = (0, 0);
+        for (i, el) in cut.elements.iter().enumerate() {
+            assert_eq!(bits(&remapped.stiffness[i]), bits(&fresh.stiffness[i]), "element {i}");
+            assert_eq!(
+                remapped.walsh[i].is_some(),
+                fresh.walsh[i].is_some(),
+                "element {i}: Walsh form"
+            );
+            let old = model.elements.iter().position(|o| Arc::ptr_eq(&o.stiffness, &el.stiffness));
+            match old {
+                Some(j) => {
+                    assert!(Arc::ptr_eq(&remapped.stiffness[i], &ff.stiffness[j]), "element {i}");
+                    reused += 1;
+                }
+                None => made += 1,
+            }
+        }
+        assert!(reused > 0 && made > 0, "{reused} reused, {made} permuted again");
     }
 
     #[test]

@@ -47,6 +47,16 @@ fn max_displacement(model: &HexModel, x: &[Vec3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The corotational static answer under gravity (hanging, or standing on its hold), converged to
+/// `tolerance`.
+fn hanging(model: &HexModel, fixed: &FixedNodes, tolerance: f64) -> Vec<Vec3> {
+    let mut ff = HexForceField::new(model, Formulation::Corotational);
+    let mut x = model.rest.clone();
+    let report = static_solve(model, &mut ff, fixed, &Loads::gravity(G), &mut x, tolerance, 100);
+    assert!(report.converged, "{report:?}");
+    x
+}
+
 /// Runs `steps` implicit steps; asserts finiteness and an energy bound every step; returns the
 /// state and the largest node displacement seen at any step.
 fn run(
@@ -118,10 +128,7 @@ fn block_fixed_at_its_bottom_sags_without_collapsing() {
     // elasticity carries it: the top must come down, but by less than a quarter of the height.
     let model = block_model([7, 5, 4], soft());
     let fixed = FixedNodes::plane(&model.rest, 2, 0.0, 1e-9);
-    let mut ff = HexForceField::new(&model, Formulation::Corotational);
-    let mut x = model.rest.clone();
-    let report = static_solve(&model, &mut ff, &fixed, &Loads::gravity(G), &mut x, 1e-9, 100);
-    assert!(report.converged, "{report:?}");
+    let x = hanging(&model, &fixed, 1e-9);
     let top_drop = model
         .rest
         .iter()
@@ -220,10 +227,7 @@ fn hundredfold_stiffness_contrast_solves_and_stays_stable() {
     let top = model.rest.iter().map(|p| p[2]).fold(0.0, f64::max);
     let fixed = FixedNodes::plane(&model.rest, 2, top, 1e-9);
     assert!(fixed.count() > 0);
-    let mut ff = HexForceField::new(&model, Formulation::Corotational);
-    let mut x = model.rest.clone();
-    let report = static_solve(&model, &mut ff, &fixed, &Loads::gravity(G), &mut x, 1e-8, 100);
-    assert!(report.converged, "{report:?}");
+    let x = hanging(&model, &fixed, 1e-8);
     let settled = max_displacement(&model, &x);
     let (_, peak) =
         run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 100, None);
@@ -368,10 +372,7 @@ fn nearly_empty_elements_stay_stable() {
         model.elements.len()
     );
     let fixed = FixedNodes::plane(&model.rest, 0, 0.0, 1e-9);
-    let mut ff = HexForceField::new(&model, Formulation::Corotational);
-    let mut x = model.rest.clone();
-    let report = static_solve(&model, &mut ff, &fixed, &Loads::gravity(G), &mut x, 1e-9, 100);
-    assert!(report.converged, "{report:?}");
+    let x = hanging(&model, &fixed, 1e-9);
     let settled = max_displacement(&model, &x);
     let (state, peak) =
         run(&model, Formulation::Corotational, &fixed, &Loads::gravity(G), 1e-2, 200, None);

@@ -64,6 +64,8 @@ pub(crate) struct Rhs<'a> {
     pub h: f64,
     /// The stiffness term's factor, `−(β + h)`.
     pub s: f64,
+    /// CG stops at `‖r‖ ≤ tolerance · max(‖b‖, reference)` (see [`crate::cg::solve_against`]).
+    pub reference: f64,
 }
 
 /// The solve's vectors, kept between solves: allocating them per step (about 1.4 MB on scene
@@ -205,7 +207,8 @@ impl Shared<'_> {
         for (q, range) in self.nodes.iter().enumerate() {
             p[range.clone()].copy_from_slice(&self.z[q].read().expect("no thread panicked"));
         }
-        let mut rel = rr.sqrt() / b_norm;
+        let scale = b_norm.max(rhs.reference);
+        let mut rel = rr.sqrt() / scale;
         let mut it = 0;
         while rel > settings.tolerance && it < settings.max_iterations {
             self.apply(m, p);
@@ -236,7 +239,7 @@ impl Shared<'_> {
                     }
                 }
             }
-            rel = rr.sqrt() / b_norm;
+            rel = rr.sqrt() / scale;
             it += 1;
         }
         CgReport { iterations: it, relative_residual: rel, converged: rel <= settings.tolerance }
@@ -285,7 +288,7 @@ impl Shared<'_> {
     /// right-hand side `b = h (node + f(x) − s·K v)` in the same element pass.
     fn apply_step(&self, m: &team::Member, p: &[Vec3], rhs: &Rhs) {
         let sys = self.sys;
-        let Rhs { x, v, node, h, s } = *rhs;
+        let Rhs { x, v, node, h, s, .. } = *rhs;
         for q in m.parts() {
             let mut sum = self.sums[q].write().expect("no thread panicked");
             let mut force = self.forces[q].write().expect("no thread panicked");
@@ -399,7 +402,7 @@ mod tests {
         let rs = crate::cg::solve(apply, block_jacobi(&pre), &fixed, &rhs, &mut serial, settings);
         let sys = System { model: &model, ff: &ff, fixed: &fixed, a, b, pre: &pre };
         let mut lockstep = vec![[0.0; 3]; model.node_count()];
-        let step = Rhs { x: &x, v: &v, node: &node, h, s };
+        let step = Rhs { x: &x, v: &v, node: &node, h, s, reference: 0.0 };
         let rl = solve(&sys, &step, &mut lockstep, settings, &mut Workspace::default());
         assert!(rs.converged && rl.converged, "{rs:?} {rl:?}");
         assert!(rs.iterations.abs_diff(rl.iterations) <= 1, "{rs:?} {rl:?}");
@@ -434,7 +437,8 @@ mod tests {
             let v = vec![[1e-3, 0.0, -2e-3]; n];
             let node = vec![[0.0, 0.0, -1e-3]; n];
             let sys = System { model: &model, ff: &ff, fixed: &fixed, a, b, pre: &pre };
-            let step = Rhs { x: &x, v: &v, node: &node, h: 1e-3, s: -(0.01 + 1e-3) };
+            let step =
+                Rhs { x: &x, v: &v, node: &node, h: 1e-3, s: -(0.01 + 1e-3), reference: 0.0 };
             let mut dv = vec![[0.0; 3]; n];
             let settings = CgSettings { tolerance: 1e-10, max_iterations: 1000 };
             solve(&sys, &step, &mut dv, settings, work);

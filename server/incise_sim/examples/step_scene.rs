@@ -1,0 +1,36 @@
+//! Steps a scene file with a procedural volume and prints, per window of steps, the steps/s and
+//! the mean CG iterations: how a scene's cost changes as its motion settles.
+//! `cargo run --release -p incise_sim --example step_scene -- deploy/scenes/b1.toml 6000 500`
+
+use incise_sim::{SceneConfig, Simulation, StepInputs};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let path = args.get(1).map_or("deploy/scenes/b1.toml", String::as_str);
+    let steps: usize = args.get(2).map_or(6000, |s| s.parse().expect("steps"));
+    let window: usize = args.get(3).map_or(500, |s| s.parse().expect("window"));
+    let text = std::fs::read_to_string(path).expect("a readable scene file");
+    let config = SceneConfig::from_toml(&text, path).unwrap_or_else(|e| panic!("{e}"));
+    let volume = config.procedural_volume().expect("a scene with a procedural volume");
+    let mut sim = Simulation::new(&config, &volume, path).unwrap_or_else(|e| panic!("{e}"));
+    let none = StepInputs::default();
+    let (mut iterations, mut residual) = (0usize, 0.0f64);
+    let mut start = std::time::Instant::now();
+    for k in 1..=steps {
+        let frame = sim.step(&none).expect("no inputs to refuse");
+        iterations += frame.counters.solver_iterations;
+        residual = residual.max(frame.counters.solver_residual);
+        if k % window == 0 {
+            let s = start.elapsed().as_secs_f64();
+            let speed: f64 = sim.state().v.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
+            println!(
+                "steps {:>6}..{k:<6} {:>9.1} steps/s  {:>6.2} CG iterations/step  worst residual {residual:.1e}  |v| {speed:.2e} m/s",
+                k + 1 - window,
+                window as f64 / s,
+                iterations as f64 / window as f64
+            );
+            (iterations, residual) = (0, 0.0);
+            start = std::time::Instant::now();
+        }
+    }
+}

@@ -368,6 +368,28 @@ fn tensor_mass_scene(model_keys: &str, dt: &str) -> String {
 }
 
 #[test]
+fn a_tensor_mass_step_is_driven_by_its_inputs_too() {
+    let text = tensor_mass_scene("elasticity = \"linear\"\n", "0.0001");
+    let config = SceneConfig::from_toml(&text, "tm.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    let mut pushed = Simulation::new(&config, &volume, "tm.toml").unwrap();
+    let mut still = Simulation::new(&config, &volume, "tm.toml").unwrap();
+    let rest = pushed.tet().unwrap().model.rest.clone();
+    // The vertex at the origin: on the bottom face, away from the held top (z = 0.1).
+    let vertex = (0..rest.len()).find(|&v| rest[v] == [0.0, 0.0, 0.0]).unwrap();
+    let push = StepInputs { node_forces: vec![(vertex, [0.0, 0.5, 0.0])] };
+    let none = StepInputs::default();
+    for _ in 0..20 {
+        pushed.step(&push).unwrap();
+        still.step(&none).unwrap();
+    }
+    let dy = pushed.state().x[vertex][1] - still.state().x[vertex][1];
+    assert!(dy > 0.0, "the pushed vertex moved {dy:e} m along y");
+    let e = pushed.step(&StepInputs { node_forces: vec![(rest.len(), [0.0; 3])] }).unwrap_err();
+    assert!(matches!(e, InputError::NoSuchNode { node, .. } if node == rest.len()), "{e}");
+}
+
+#[test]
 fn tensor_mass_keys_are_checked() {
     let ok = tensor_mass_scene("elasticity = \"svk\"\nincompressibility = 1e5\n", "1e-4");
     let config = SceneConfig::from_toml(&ok, "tm.toml").unwrap();

@@ -751,6 +751,13 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         "timing: hexahedral rows take {} untimed steps, then {} runs of at least {} steps lasting about {} s each (median, min, max); from the same state on",
         args.warmup_steps, args.repeats, args.steps, args.run_seconds
     );
+    if rows.iter().any(|r| r.scene.starts_with('B')) && args.reference_cells == [33, 22, 18] {
+        // Measured 2026-11-23: 12.996 mm at 33×22×18 against 12.528 mm at 44×30×24 (the pulled
+        // corner under a load split into equal per-node shares does not converge monotonically).
+        println!(
+            "scene B's reference is a static solve at 33x22x18 cells; at 44x30x24 the pulled corner moves 3.6 % less, so B errors below a few per cent measure agreement with that mesh, not with the continuum"
+        );
+    }
     println!();
     println!(
         "explicit stable dt per mesh (rest stiffness; an explicit row runs only at or below it):"

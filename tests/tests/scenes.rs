@@ -175,6 +175,19 @@ fn keys_that_contradict_their_region_or_integrator_are_refused_with_their_line()
             13,
             "integrator.rayleigh_beta",
         ),
+        // The direct solver solves exactly: a CG tolerance would be ignored.
+        (
+            GOOD.replace("dt = 0.001", "dt = 0.001\nsolver = \"cholesky\"\ncg_tolerance = 1e-8"),
+            15,
+            "integrator.cg_tolerance",
+        ),
+        // An empty list of materials, at its line.
+        (
+            GOOD.replace("[[materials]]\nlabel = 1\nyoungs_modulus = 1000.0\npoisson_ratio = 0.3\ndensity = 1000.0\n", "")
+                .replace("name = \"t\"", "name = \"t\"\nmaterials = []"),
+            2,
+            "materials",
+        ),
         // No materials at all: reported at line 1, as serde reports a missing top-level key.
         (
             GOOD.replace("[[materials]]\nlabel = 1\nyoungs_modulus = 1000.0\npoisson_ratio = 0.3\ndensity = 1000.0\n", ""),
@@ -199,6 +212,10 @@ fn keys_that_contradict_their_region_or_integrator_are_refused_with_their_line()
     let volume = config.procedural_volume().unwrap();
     let err = Simulation::new(&config, &volume, "code").err().expect("refused");
     assert!(err.to_string().contains("rayleigh_beta"), "{err}");
+    let mut config = SceneConfig::from_toml(GOOD, "ok.toml").unwrap();
+    config.materials[0].material.rayleigh_mass = 0.1;
+    let err = Simulation::new(&config, &volume, "code").err().expect("refused");
+    assert!(err.to_string().contains("per-material damping"), "{err}");
 }
 
 #[test]
@@ -237,7 +254,10 @@ fn a_static_scene_solves_with_the_solver_it_names() {
     let volume = config.procedural_volume().unwrap();
     let mut sim = Simulation::new(&config, &volume, "free.toml").unwrap();
     let frame = sim.step(&StepInputs::default()).unwrap();
+    println!("free static step: {:?}", frame.counters);
     assert!(frame.counters.solver_residual > 1e-10, "{:?}", frame.counters);
+    // Block-Jacobi ran (a factor would have taken a handful of iterations per Newton step).
+    assert!(frame.counters.solver_iterations > 10 * cholesky_iterations, "{:?}", frame.counters);
 }
 
 #[test]
@@ -279,8 +299,15 @@ fn a_step_is_driven_by_its_inputs_and_refuses_bad_ones() {
     assert_eq!(replay.state_hash, a.state_hash);
     assert!(last.is_some());
 
-    // Bad inputs are refused with what and where, and take no step.
+    // Bad inputs are refused with what and where, and take no step: the refused simulation
+    // goes on exactly as a twin that was never given them.
+    let mut twin = Simulation::new(&config, &volume, "b1.toml").unwrap();
+    for _ in 0..20 {
+        twin.step(&push).unwrap();
+    }
+    twin.step(&none).unwrap();
     let before = pushed.step(&none).unwrap();
+    assert_eq!(twin.step(&none).unwrap().state_hash, before.state_hash);
     let nodes = rest.len();
     let e = pushed.step(&StepInputs { node_forces: vec![(0, [0.0; 3]), (nodes, [1.0, 0.0, 0.0])] });
     assert_eq!(e, Err(InputError::NoSuchNode { entry: 1, node: nodes, nodes }));
@@ -290,7 +317,11 @@ fn a_step_is_driven_by_its_inputs_and_refuses_bad_ones() {
     assert!(e.to_string().contains("not finite"), "{e}");
     let after = pushed.step(&none).unwrap();
     assert_eq!(after.index, before.index + 1, "a refused step is not counted");
-    assert!(after.positions.iter().flatten().all(|c| c.is_finite()));
+    assert_eq!(
+        after.state_hash,
+        twin.step(&none).unwrap().state_hash,
+        "nor does it change the state"
+    );
 }
 
 #[test]
@@ -383,10 +414,21 @@ fn a_tensor_mass_step_is_driven_by_its_inputs_too() {
         pushed.step(&push).unwrap();
         still.step(&none).unwrap();
     }
+    // 0.5 N for 2 ms on a vertex of a few grams: micrometres, far above rounding.
     let dy = pushed.state().x[vertex][1] - still.state().x[vertex][1];
-    assert!(dy > 0.0, "the pushed vertex moved {dy:e} m along y");
+    assert!(dy > 1e-7, "the pushed vertex moved {dy:e} m along y");
     let e = pushed.step(&StepInputs { node_forces: vec![(rest.len(), [0.0; 3])] }).unwrap_err();
     assert!(matches!(e, InputError::NoSuchNode { node, .. } if node == rest.len()), "{e}");
+    let e = pushed.step(&StepInputs { node_forces: vec![(vertex, [f64::INFINITY, 0.0, 0.0])] });
+    assert!(matches!(e, Err(InputError::NotFinite { node, .. }) if node == vertex), "{e:?}");
+    // Neither refusal changed anything: both go on with the same step on the same state.
+    let (a, b) = (pushed.step(&none).unwrap(), still.step(&none).unwrap());
+    assert_eq!(a.index, b.index);
+    let mut twin = Simulation::new(&config, &volume, "tm.toml").unwrap();
+    for _ in 0..20 {
+        twin.step(&push).unwrap();
+    }
+    assert_eq!(twin.step(&none).unwrap().state_hash, a.state_hash);
 }
 
 #[test]

@@ -11,8 +11,10 @@
 //! Newton iteration does not converge at level 0). A solver that stopped short would show in that value, and a run
 //! that never settles reports no error. The static answer of the row's own mesh and model is
 //! reported beside it (`error_static`). A row is stable when its run stays finite and bounded.
-//! Speed is steps per second of the integrator alone, median/min/max over `--repeats` runs, each
-//! lasting about `--run-seconds` after `--warmup-steps` untimed steps (as the peers' scripts time).
+//! Speed is steps per second of the integrator alone, median/min/max over `--repeats` runs. A
+//! hexahedral row's runs follow `--warmup-steps` untimed steps and last about `--run-seconds`
+//! (`--steps` to `--max-steps` steps), shaped like the peers' scripts; a tensor-mass row times
+//! `--steps` steps from rest.
 
 use crate::timing::measure;
 use anyhow::{Context, bail};
@@ -45,6 +47,9 @@ pub struct SpeedErrorArgs {
     /// Wall time one timed run aims at (s); its step count is chosen from a short trial.
     #[arg(long, default_value_t = 0.25)]
     run_seconds: f64,
+    /// Most steps in one timed run (the peers' scripts cap theirs at 2,000 too).
+    #[arg(long, default_value_t = 2000)]
+    max_steps: usize,
     /// Untimed steps before the timed runs of a row (the peers' scripts warm up too).
     #[arg(long, default_value_t = 20)]
     warmup_steps: usize,
@@ -488,10 +493,11 @@ fn stepper(
 }
 
 /// Takes `--warmup-steps` untimed steps, then a short trial, and returns the step count of one
-/// timed run: enough to last about `--run-seconds`, at least `--steps`, at most 100,000. The
-/// peers' scripts (`../shared/peers/scenes.py`: `pick_steps`, `time_runs`) time the same way, so
-/// neither side's figure carries first-step costs (allocation, page faults, the first solves'
-/// empty history) the other does not.
+/// timed run: enough to last about `--run-seconds`, at least `--steps`, at most `--max-steps`.
+/// The peers' scripts (`../shared/peers/scenes.py`: `pick_steps`, `time_runs`) also warm up and
+/// choose their step counts under the same 2,000-step cap, so neither side's figure carries
+/// first-step costs (allocation, page faults, the first solves' empty history) the other does
+/// not, and fast rows on both sides time the same stretch of simulated time.
 fn warm_up(args: &SpeedErrorArgs, mut step: impl FnMut()) -> usize {
     for _ in 0..args.warmup_steps {
         step();
@@ -502,8 +508,8 @@ fn warm_up(args: &SpeedErrorArgs, mut step: impl FnMut()) -> usize {
         step();
     }
     let per_step = start.elapsed().as_secs_f64() / trial as f64;
-    let wanted = (args.run_seconds / per_step.max(1e-9)).ceil();
-    (wanted.min(1e5) as usize).max(args.steps)
+    let wanted = (args.run_seconds / per_step.max(1e-9)).ceil().min(1e9) as usize;
+    wanted.min(args.max_steps).max(args.steps)
 }
 
 /// What a row's own run from rest found.
@@ -748,8 +754,8 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     print_table(&rows);
     println!(
-        "timing: hexahedral rows take {} untimed steps, then {} runs of at least {} steps lasting about {} s each (median, min, max); from the same state on",
-        args.warmup_steps, args.repeats, args.steps, args.run_seconds
+        "timing: hexahedral rows take {} untimed steps, then {} runs of {}-{} steps lasting about {} s each (median, min, max), from the same state on; tensor-mass rows time {} steps from rest",
+        args.warmup_steps, args.repeats, args.steps, args.max_steps, args.run_seconds, args.steps
     );
     if rows.iter().any(|r| r.scene.starts_with('B')) && args.reference_cells == [33, 22, 18] {
         // Measured 2026-11-23: 12.996 mm at 33×22×18 against 12.528 mm at 44×30×24 (the pulled

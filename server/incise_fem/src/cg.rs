@@ -9,7 +9,8 @@ use incise_math::mat3::{Mat3, det, mul_vec};
 /// When to stop.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CgSettings {
-    /// Stop when ‖r‖ ≤ tolerance · ‖b‖.
+    /// Stop when ‖r‖ ≤ tolerance · ‖b‖ ([`solve`]), or tolerance · max(‖b‖, reference)
+    /// ([`solve_against`], the implicit step's rule).
     pub tolerance: f64,
     /// Give up after this many iterations.
     pub max_iterations: usize,

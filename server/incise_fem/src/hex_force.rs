@@ -621,6 +621,9 @@ mod tests {
             match old {
                 Some(j) => {
                     assert!(Arc::ptr_eq(&remapped.stiffness[i], &ff.stiffness[j]), "element {i}");
+                    if let (Some(a), Some(b)) = (&remapped.walsh[i], &ff.walsh[j]) {
+                        assert!(Arc::ptr_eq(a, b), "element {i}: Walsh form not reused");
+                    }
                     reused += 1;
                 }
                 None => made += 1,

@@ -213,7 +213,7 @@ struct RawScene {
     #[serde(default)]
     level: Option<Spanned<i64>>,
     #[serde(default)]
-    materials: Vec<Spanned<RawMaterial>>,
+    materials: Option<Spanned<Vec<Spanned<RawMaterial>>>>,
     #[serde(default)]
     model: Option<RawModel>,
     integrator: RawIntegrator,
@@ -663,7 +663,12 @@ impl SceneConfig {
             None => 0,
         };
         let mut materials = Vec::new();
-        for (i, m) in raw.materials.iter().enumerate() {
+        let no_materials: &[Spanned<RawMaterial>] = &[];
+        let (materials_at, raw_materials) = match &raw.materials {
+            Some(list) => (list.span(), list.get_ref().as_slice()),
+            None => (0..0, no_materials),
+        };
+        for (i, m) in raw_materials.iter().enumerate() {
             let m = m.get_ref();
             let key = |k: &str| format!("materials[{i}].{k}");
             // Damping is one Rayleigh pair for the scene: the implicit system is a·M + b·K with
@@ -724,9 +729,10 @@ impl SceneConfig {
             materials.push(MaterialSpec { label: label as u16, material });
         }
         if materials.is_empty() {
-            // Like serde's own "missing field" errors, a missing table is reported at line 1.
+            // An empty `materials = []` at its line; a missing table at line 1, as serde reports
+            // its own "missing field" errors.
             return Err(c.invalid(
-                0..0,
+                materials_at,
                 "materials",
                 "is missing: the scene needs at least one `[[materials]]` entry",
             ));
@@ -889,6 +895,16 @@ impl SceneConfig {
                 }
             },
         };
+        if integrator == IntegratorKind::ImplicitEuler
+            && solver == incise_fem::integrate::LinearSolver::Cholesky
+            && let Some(t) = &i.cg_tolerance
+        {
+            return Err(c.invalid(
+                t.span(),
+                "integrator.cg_tolerance",
+                "does not apply to `solver = \"cholesky\"`: the implicit step then solves exactly, without CG",
+            ));
+        }
         if integrator == IntegratorKind::Explicit {
             // An explicit step has no linear solve; and stiffness-proportional damping would cap
             // its stable step near 2/(β ω²) (ω the mesh's highest frequency): microseconds here.

@@ -37,7 +37,8 @@ pub struct StageCounters {
     pub update_ns: u64,
     /// Linear-solver iterations (CG) in the step.
     pub solver_iterations: usize,
-    /// Final relative residual of the step's solve.
+    /// Final residual of the step's solve, relative to the larger of its right-hand side and
+    /// `h‖f_ext‖` (see `incise_fem::cg::solve_against`); a static step's, relative to the load.
     pub solver_residual: f64,
     /// Tensor-mass scenes: vertices using non-linear elasticity (all for SVK, none for linear,
     /// those past the threshold with adaptive non-linearity).
@@ -310,6 +311,23 @@ impl Simulation {
             }
             VolumeSpec::Block { .. } => volume.clone(),
         };
+        // A config built in code skips the file's checks of what the mechanics ignores.
+        if config.integrator == IntegratorKind::Explicit && config.rayleigh_beta != 0.0 {
+            return Err(build(format!(
+                "integrator.rayleigh_beta = {} does not apply to the explicit integrator (only rayleigh_alpha does)",
+                config.rayleigh_beta
+            )));
+        }
+        if let Some(m) = config
+            .materials
+            .iter()
+            .find(|m| m.material.rayleigh_mass != 0.0 || m.material.rayleigh_stiffness != 0.0)
+        {
+            return Err(build(format!(
+                "label {}: per-material damping is not supported; set integrator.rayleigh_alpha and rayleigh_beta",
+                m.label
+            )));
+        }
         let mut table = MaterialTable::new();
         for m in &config.materials {
             table.insert(m.label, m.material);
@@ -325,13 +343,6 @@ impl Simulation {
             None => None,
         };
         let config = &config;
-        if config.integrator == IntegratorKind::Explicit && config.rayleigh_beta != 0.0 {
-            // A config built in code skips the file check; the explicit steps have no β term.
-            return Err(build(format!(
-                "integrator.rayleigh_beta = {} does not apply to the explicit integrator (only rayleigh_alpha does)",
-                config.rayleigh_beta
-            )));
-        }
         if let (ModelKind::TensorMass, Some(spec)) = (config.model, config.tensor_mass) {
             let (body, fixed) = tet_body(config, &spec, &volume, &table).map_err(build)?;
             let state =

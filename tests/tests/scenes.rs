@@ -657,6 +657,54 @@ fn an_explicit_scene_reports_its_stable_step() {
 }
 
 #[test]
+fn an_explicit_scene_takes_smaller_steps_when_a_cut_lowers_its_limit() {
+    // A 4×4×4-voxel block at level 1 (2×2×2 cells) of stiffer tissue (small strains, so the rest
+    // stiffness's limit is the one that matters), held at its top and lightly damped, stepping
+    // at 0.99 of its stable step. Cutting a bottom cell down to one voxel that still joins the
+    // block leaves light corners tied by a sliver: the mesh's limit falls below the scene's dt.
+    let text = GOOD
+        .replace("voxels = [2, 2, 2]", "voxels = [4, 4, 4]")
+        .replace("youngs_modulus = 1000.0", "youngs_modulus = 100000.0")
+        .replace(
+            "kind = \"implicit-euler\"\ndt = 0.001",
+            "kind = \"explicit\"\ndt = DT\nrayleigh_alpha = 1.0",
+        )
+        .replace("name = \"t\"", "name = \"t\"\nlevel = 1");
+    let build = |dt: f64| {
+        let config =
+            SceneConfig::from_toml(&text.replace("DT", &dt.to_string()), "t.toml").unwrap();
+        let volume = config.procedural_volume().unwrap();
+        Simulation::new(&config, &volume, "t.toml").unwrap()
+    };
+    let limit = build(1e-6).explicit_stable_dt().unwrap();
+    let dt = 0.99 * limit;
+    let mut sim = build(dt);
+    let none = StepInputs::default();
+    assert_eq!(sim.step(&none).unwrap().counters.substeps, 1);
+    // Keep only voxel (1, 1, 1) of the cell at the origin: still joined to the block through
+    // its faces with the neighbouring cells.
+    let cell: Vec<u32> = (0..2u32)
+        .flat_map(|z| (0..2u32).flat_map(move |y| (0..2u32).map(move |x| x + 4 * (y + 4 * z))))
+        .filter(|&v| v != 1 + 4 * (1 + 4))
+        .collect();
+    sim.cut(&incise_grid::GridEdit { remove_voxels: cell, sever_links: vec![] }).unwrap();
+    let after = sim.explicit_stable_dt().unwrap();
+    let frame = sim.step(&none).unwrap();
+    println!(
+        "stable dt {limit:.3e} s before the cut, {after:.3e} s after; dt {dt:.3e} s: {} substeps",
+        frame.counters.substeps
+    );
+    assert!(after < dt, "the cut must lower the limit below dt: {after:e} against {dt:e}");
+    assert_eq!(frame.counters.substeps, (dt / after).ceil() as usize);
+    // 2,000 frames: bounded (the block is 0.1 m; it sags by millimetres).
+    for k in 0..2000 {
+        let frame = sim.step(&none).unwrap();
+        let far = frame.positions.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
+        assert!(far < 0.2, "frame {k}: a node at {far:e} m");
+    }
+}
+
+#[test]
 fn the_mass_matrix_is_a_scene_key() {
     let consistent = GOOD.replace("dt = 0.001", "dt = 0.001\nmass = \"consistent\"");
     let config = SceneConfig::from_toml(&consistent, "t.toml").unwrap();

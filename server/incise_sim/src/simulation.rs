@@ -40,6 +40,9 @@ pub struct StageCounters {
     /// Final residual of the step's solve, relative to the larger of its right-hand side and
     /// `h‖f_ext‖` (see `incise_fem::cg::solve_against`); a static step's, relative to the load.
     pub solver_residual: f64,
+    /// Explicit hexahedral scenes: explicit steps taken for this frame; more than 1 once a cut
+    /// has lowered the mesh's stable step below the scene's `dt`. Zero for other integrators.
+    pub substeps: usize,
     /// Tensor-mass scenes: vertices using non-linear elasticity (all for SVK, none for linear,
     /// those past the threshold with adaptive non-linearity).
     pub nonlinear_vertices: usize,
@@ -98,12 +101,14 @@ pub struct Frame {
 
 enum Integrator {
     Implicit(Box<BackwardEuler>),
-    /// `stable_dt`: the mesh's explicit stability limit (s); `None` after a cut until asked for
-    /// (the estimate is a power iteration: not something every cut should pay for).
+    /// `stable_dt`: the mesh's explicit stability limit (s), re-estimated after every cut;
+    /// `substeps`: explicit steps per frame, `⌈dt / stable_dt⌉` (1 until a cut lowers the limit
+    /// below the scene's `dt`: cut cells hold less mass, and their corners can vibrate faster).
     Explicit {
         dt: f64,
         alpha: f64,
-        stable_dt: std::cell::Cell<Option<f64>>,
+        stable_dt: f64,
+        substeps: usize,
     },
     /// `cholesky`: each Newton step's CG preconditioned by a factorisation of the stiffness
     /// (`integrator.solver = "cholesky"` or `"cholesky-cg"`), else block-Jacobi.
@@ -397,7 +402,8 @@ impl Simulation {
                 Integrator::Explicit {
                     dt: config.dt,
                     alpha: config.rayleigh_alpha,
-                    stable_dt: std::cell::Cell::new(Some(limit)),
+                    stable_dt: limit,
+                    substeps: 1,
                 }
             }
             IntegratorKind::Static => Integrator::Static {
@@ -477,16 +483,19 @@ impl Simulation {
                 (counters.rotations_ns, counters.solve_ns, counters.update_ns) =
                     (t.rotations_ns, t.solve_ns, t.update_ns);
             }
-            Integrator::Explicit { dt, alpha, .. } => {
-                explicit_step(
-                    &hex.model,
-                    &mut hex.force_field,
-                    &self.fixed,
-                    loads,
-                    *alpha,
-                    *dt,
-                    &mut self.state,
-                );
+            Integrator::Explicit { dt, alpha, substeps, .. } => {
+                for _ in 0..*substeps {
+                    explicit_step(
+                        &hex.model,
+                        &mut hex.force_field,
+                        &self.fixed,
+                        loads,
+                        *alpha,
+                        *dt / *substeps as f64,
+                        &mut self.state,
+                    );
+                }
+                counters.substeps = *substeps;
             }
             Integrator::Static { tolerance, cholesky } => {
                 let r = static_solve_with(
@@ -605,8 +614,14 @@ impl Simulation {
         hex.loads = Loads { gravity: self.config.gravity, nodal };
         match &mut hex.integrator {
             Integrator::Implicit(be) => be.remap_warm_start(&old_of_new),
-            // Cut elements hold less mass: the cut mesh's limit may be lower; estimated when asked.
-            Integrator::Explicit { stable_dt: limit, .. } => limit.set(None),
+            // Cut cells hold less mass and the cut mesh's limit may fall below dt: rather than
+            // blow up (or refuse the cut), each frame then takes as many smaller steps as it
+            // needs. The estimate is a power iteration, paid once per cut; the explicit
+            // integrator is for comparisons and CFL studies, interactive cutting runs implicit.
+            Integrator::Explicit { dt, stable_dt: limit, substeps, .. } => {
+                *limit = stable_dt(&model, &hex.force_field, &self.fixed);
+                *substeps = (*dt / *limit).ceil().max(1.0) as usize;
+            }
             Integrator::Static { .. } => {}
         }
         hex.model = model;
@@ -621,19 +636,13 @@ impl Simulation {
     }
 
     /// With an explicit integrator: the mesh's stable step (s), estimated from the rest
-    /// stiffness (after a cut, of the cut mesh, estimated at the first call). `None` for the
-    /// implicit and static integrators.
+    /// stiffness (after a cut, of the cut mesh). A frame takes `⌈dt / limit⌉` explicit steps
+    /// (`StageCounters::substeps`). `None` for the implicit and static integrators.
     #[must_use]
     pub fn explicit_stable_dt(&self) -> Option<f64> {
         match &self.body {
             Body::Hex(hex) => match &hex.integrator {
-                Integrator::Explicit { stable_dt: limit, .. } => {
-                    Some(limit.get().unwrap_or_else(|| {
-                        let estimate = stable_dt(&hex.model, &hex.force_field, &self.fixed);
-                        limit.set(Some(estimate));
-                        estimate
-                    }))
-                }
+                Integrator::Explicit { stable_dt: limit, .. } => Some(*limit),
                 _ => None,
             },
             Body::Tet(tet) => Some(tet.stable_dt),

@@ -16,6 +16,14 @@ const PEERS: [(&str, [f64; 3]); 3] = [
     ("Newton semi-implicit", [5_116.0, 2_274.0, 455.0]),
 ];
 
+/// Height of a label line (px) at the labels' 11 px font.
+const LINE: i32 = 13;
+
+/// Whether two pixel boxes `[x0, y0, x1, y1]` overlap.
+fn overlap(a: &[i32; 4], b: &[i32; 4]) -> bool {
+    a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]
+}
+
 fn load_font() -> anyhow::Result<()> {
     let bytes = std::fs::read(FONT)
         .map_err(|e| anyhow::anyhow!("{FONT}: {e} (install Debian's fonts-dejavu-core)"))?;
@@ -79,17 +87,31 @@ pub fn speed_error_png(
     }
     if let Some(measured) = measured {
         let color = Palette99::pick(6).to_rgba();
+        // Peers often sit close together: each label goes right of its marker, moved down a
+        // line at a time until it clears the labels already placed, with a leader line when
+        // moved.
+        let mut placed: Vec<[i32; 4]> = Vec::new();
         for (label, rate, error) in measured {
-            chart.draw_series(std::iter::once(TriangleMarker::new(
-                (*rate, *error),
-                7,
-                color.filled(),
-            )))?;
-            chart.draw_series(std::iter::once(Text::new(
-                label.clone(),
-                (*rate, *error),
-                ("sans-serif", 11),
-            )))?;
+            let at = (*rate, *error);
+            chart.draw_series(std::iter::once(TriangleMarker::new(at, 7, color.filled())))?;
+            let (px, py) = chart.backend_coord(&at);
+            let (width, height) = (6 * label.chars().count() as i32, LINE);
+            let mut dy = -height / 2;
+            for _ in 0..30 {
+                let bounds = [px + 8, py + dy, px + 8 + width, py + dy + height];
+                if !placed.iter().any(|b| overlap(b, &bounds)) {
+                    break;
+                }
+                dy += height;
+            }
+            placed.push([px + 8, py + dy, px + 8 + width, py + dy + height]);
+            let text = Text::new(label.clone(), (8, dy), ("sans-serif", 11));
+            if dy == -height / 2 {
+                chart.draw_series(std::iter::once(EmptyElement::at(at) + text))?;
+            } else {
+                let leader = PathElement::new(vec![(0, 0), (8, dy + height / 2)], color);
+                chart.draw_series(std::iter::once(EmptyElement::at(at) + leader + text))?;
+            }
         }
         chart
             .configure_series_labels()

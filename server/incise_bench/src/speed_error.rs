@@ -698,7 +698,9 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 start.elapsed().as_secs_f64()
             ),
             None => {
-                eprintln!("  did not settle to an equilibrium: the corotational rows have no error")
+                eprintln!(
+                    "  did not settle to an equilibrium: the corotational rows have no error"
+                );
             }
         }
         let corotational = corotational.map(|(r, _)| r);

@@ -579,28 +579,30 @@ mod tests {
     use incise_grid::procedural::{TISSUE, TUMOUR, ellipsoid_with_inclusion};
     use incise_grid::{BranchedGrid, Material, MaterialTable};
 
-    fn ellipsoid_model() -> HexModel {
+    /// Level 2 of an ellipsoid with a stiffer inclusion: full, partly filled and superimposed
+    /// cells.
+    fn ellipsoid_grid() -> BranchedGrid {
         let mut table = MaterialTable::new();
         table.insert(TISSUE, Material::new(3e3, 0.45, 1000.0));
         table.insert(TUMOUR, Material::new(3e4, 0.45, 1000.0));
-        let grid = BranchedGrid::build(&ellipsoid_with_inclusion(20, 2e-3), &table, 2).unwrap();
-        HexModel::from_grid(&grid)
+        BranchedGrid::build(&ellipsoid_with_inclusion(20, 2e-3), &table, 2).unwrap()
+    }
+
+    fn ellipsoid_model() -> HexModel {
+        HexModel::from_grid(&ellipsoid_grid())
     }
 
     #[test]
     fn a_cut_field_equals_a_new_one_and_reuses_what_the_cut_left_alone() {
-        let mut table = MaterialTable::new();
-        table.insert(TISSUE, Material::new(3e3, 0.45, 1000.0));
-        table.insert(TUMOUR, Material::new(3e4, 0.45, 1000.0));
-        let mut grid = BranchedGrid::build(&ellipsoid_with_inclusion(20, 2e-3), &table, 2).unwrap();
+        let mut grid = ellipsoid_grid();
         let model = HexModel::from_grid(&grid);
         let ff = HexForceField::new(&model, Formulation::Corotational);
         let dims = grid.fine().dims();
         // A slab of voxels through the middle: re-condenses the cells it crosses, splits some.
-        let x = dims[0] as u32 / 2;
-        let remove: Vec<u32> = (0..dims[2] as u32)
-            .flat_map(|z| (0..dims[1] as u32).map(move |y| (x, y, z)))
-            .map(|(x, y, z)| x + dims[0] as u32 * (y + dims[1] as u32 * z))
+        let x = dims[0] / 2;
+        let remove: Vec<u32> = (0..dims[2])
+            .flat_map(|z| (0..dims[1]).map(move |y| (x, y, z)))
+            .map(|(x, y, z)| x + dims[0] * (y + dims[1] * z))
             .collect();
         let changes = grid
             .apply(&incise_grid::GridEdit { remove_voxels: remove, sever_links: vec![] })

@@ -564,8 +564,9 @@ impl BackwardEuler {
         // side is the rounding noise of f_int + f_ext ≈ 0, and solving to 1e-6 of that noise took
         // B1 (block-Jacobi CG, 1 ms) from 1.6 to 7 iterations a step, rising as it settled. It
         // loosens the solves of a moving body too, where the right-hand side is smaller than
-        // h‖f_ext‖: B1's trajectory stays within 1e-5 of an exactly solved one (tested). The step's force balance is
-        // then exact to the tolerance of the loads, as the static solver's is.
+        // h‖f_ext‖: B1's trajectory stays within 1e-5 of an exactly solved one (tested). The
+        // step's force balance is then exact to the tolerance of the loads, as the static
+        // solver's is.
         let reference = h * load_scale(model, loads, fixed);
         // CG starts from the last steps' velocity changes extrapolated (a smooth motion's
         // acceleration changes slowly): on B3 at 1 ms the cubic saves half the iterations, to the

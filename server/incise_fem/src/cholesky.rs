@@ -15,6 +15,7 @@ use crate::constraints::FixedNodes;
 use crate::hex_force::HexForceField;
 use crate::model::HexModel;
 use crate::supernodal::{Scalar, Supernodes};
+use crate::tangent::RotationTangent;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{
@@ -232,6 +233,34 @@ impl SystemFactor {
         b: f64,
         consistent: bool,
     ) -> Result<(), FactorError> {
+        self.assemble_and_factorize(model, ff, a, b, consistent, None)
+    }
+
+    /// The factor of `K + sym(T)`, `T` the rotation-derivative part of the corotational
+    /// Jacobian at the rotations of `ff` ([`RotationTangent`]): a preconditioner for static
+    /// Newton's nonsymmetric systems close enough that Bi-CGSTAB needs a few products.
+    ///
+    /// # Errors
+    /// If that matrix is not numerically positive definite (far from equilibrium the rotation
+    /// term can make it indefinite; factor `K` alone then).
+    pub fn factorize_tangent(
+        &mut self,
+        model: &HexModel,
+        ff: &HexForceField,
+        tangent: &RotationTangent,
+    ) -> Result<(), FactorError> {
+        self.assemble_and_factorize(model, ff, 0.0, 1.0, false, Some(tangent))
+    }
+
+    fn assemble_and_factorize(
+        &mut self,
+        model: &HexModel,
+        ff: &HexForceField,
+        a: f64,
+        b: f64,
+        consistent: bool,
+        tangent: Option<&RotationTangent>,
+    ) -> Result<(), FactorError> {
         self.values.fill(0.0);
         if !consistent {
             for (n, &f) in self.free.iter().enumerate() {
@@ -260,10 +289,14 @@ impl SystemFactor {
                     }
                 }
             }
+            let extra = tangent.and_then(|t| t.symmetric_block(ei));
             for ci in 0..8 {
                 for cj in 0..8 {
                     let k: [[f64; 3]; 3] = std::array::from_fn(|p| {
-                        std::array::from_fn(|q| e.stiffness.get(3 * ci + p, 3 * cj + q))
+                        std::array::from_fn(|q| {
+                            let (i, j) = (3 * ci + p, 3 * cj + q);
+                            e.stiffness.get(i, j) + extra.as_ref().map_or(0.0, |x| x[i][j])
+                        })
                     });
                     let rk = mul(&mul(r, &k), &rt);
                     for p in 0..3 {

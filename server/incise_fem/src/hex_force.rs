@@ -6,7 +6,8 @@
 //!   gradient at the centre of mass of the element's material, `F = Σₐ xₐ ⊗ ∇Nₐ(ξ̄)` (the
 //!   cell's centre for a full cell), by the inversion-safe method of
 //!   `incise_math::rotation` (warm-started from the previous call); forces are
-//!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit solves is `R K Rᵀ` per element.
+//!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit steps is `R K Rᵀ` per element
+//!   (static Newton adds the rotation's derivative, `crate::tangent`).
 
 use crate::kernel::{
     Local, Wide, component_major, gather, product, product_pair, scatter_add, to_global, to_local,
@@ -213,6 +214,11 @@ impl HexForceField {
     #[must_use]
     pub fn rotation(&self, e: usize) -> &Mat3 {
         &self.frames[e].r
+    }
+
+    /// The shape-function gradients element `e`'s rotation is taken at (`F = Σₐ xₐ ⊗ ∇Nₐ`).
+    pub(crate) fn rotation_gradient(&self, e: usize) -> &[Vec3; 8] {
+        self.off_centre[e].as_deref().unwrap_or(&self.centre_gradient)
     }
 
     /// Re-extracts every element's rotation from positions `x` (no-op when linear).

@@ -8,6 +8,7 @@
 //! element writes its own contribution and the sums over elements run in element order, so results
 //! are bit-identical whatever the thread count.
 
+pub mod bicgstab;
 pub mod cg;
 pub mod cholesky;
 pub mod constraints;
@@ -19,6 +20,7 @@ pub mod model;
 pub mod ordering;
 mod parallel;
 mod supernodal;
+pub mod tangent;
 mod team;
 pub mod tet;
 mod walsh;

@@ -235,6 +235,58 @@ fn corotational_forces_match_the_energy_at_small_strain_and_the_stiffness_at_rot
 }
 
 #[test]
+fn the_full_corotational_tangent_matches_finite_differences_under_large_strain() {
+    // A stretched, sheared and rotated block, one with full cells and one with a hole so that
+    // partly filled cells (rotations taken off the cell's centre) are covered too. There the
+    // force is far from zero, so `R K Rᵀ` alone misses the rotation's derivative by a part of
+    // the order of the strain; with `RotationTangent` the product must match central
+    // differences of the forces to truncation and rotation round-off: 1e-6 relative (h = 1e-7
+    // on a 2 cm block: O(h²) truncation ~1e-10, round-off ~1e-16·|f|/h ~1e-9 of |K d|).
+    use incise_fem::tangent::RotationTangent;
+    let material = Material::new(3e3, 0.45, 1000.0);
+    let holed = {
+        let v = from_fn([4, 4, 4], [0.005; 3], |x, y, z| {
+            u16::from(!((1.0..2.0).contains(&x) && y > 1.0 && (2.0..3.0).contains(&z)))
+        });
+        let grid = BranchedGrid::build(&v, &MaterialTable::uniform(&[1], material), 1).unwrap();
+        HexModel::from_grid(&grid)
+    };
+    for (name, model) in [("full", block([2, 2, 2], [0.02; 3], 1, material)), ("holed", holed)] {
+        let r = axis_angle(&[0.48, 0.6, 0.64], 1.1);
+        let x: Vec<Vec3> = perturbed(&model, 4e-3, 13)
+            .iter()
+            .map(|p| mul_vec(&r, &[1.3 * p[0] + 0.2 * p[2], 0.9 * p[1], p[2]]))
+            .collect();
+        let dir: Vec<Vec3> = perturbed(&model, 1.0, 17)
+            .iter()
+            .zip(&model.rest)
+            .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+            .collect();
+        let h = 1e-7;
+        let shifted = |s: f64| -> Vec<Vec3> {
+            x.iter().zip(&dir).map(|(p, d)| std::array::from_fn(|k| p[k] + s * d[k])).collect()
+        };
+        let mut ff = HexForceField::new(&model, Formulation::Corotational);
+        let mut force_at = |x: &[Vec3]| {
+            ff.update_rotations(&model, x);
+            let mut f = vec![[0.0; 3]; model.node_count()];
+            ff.add_forces(&model, x, &mut f);
+            f
+        };
+        let (fp, fm) = (force_at(&shifted(h)), force_at(&shifted(-h)));
+        ff.update_rotations(&model, &x);
+        let mut kd = vec![[0.0; 3]; model.node_count()];
+        ff.add_stiffness_times(&model, 1.0, &dir, &mut kd);
+        let without = stiffness_mismatch(&kd, &fp, &fm, h) / dot(&kd, &kd).sqrt();
+        RotationTangent::at(&model, &ff, &x).add_times(&model, &ff, 1.0, &dir, &mut kd);
+        let with = stiffness_mismatch(&kd, &fp, &fm, h) / dot(&kd, &kd).sqrt();
+        println!("{name}: relative mismatch R K Rᵀ alone {without:.2e}, with ∂R/∂x {with:.2e}");
+        assert!(without > 1e-2, "{name}: the state must be loaded enough to tell ({without:e})");
+        assert!(with <= 1e-6, "{name}: full tangent differs from the force difference by {with:e}");
+    }
+}
+
+#[test]
 fn linear_and_corotational_agree_for_small_loads() {
     let model = block([4, 2, 2], [0.04, 0.02, 0.02], 1, Material::new(3e3, 0.45, 1000.0));
     let fixed = FixedNodes::plane(&model.rest, 0, 0.0, 1e-12);

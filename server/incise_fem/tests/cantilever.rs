@@ -113,3 +113,33 @@ fn implicit_euler_settles_on_the_static_cantilever() {
         );
     }
 }
+
+#[test]
+fn static_newton_reaches_large_deflections() {
+    // Softer and softer cantilevers under their weight, up to a tip deflection of 70 % of the
+    // length. With the full corotational tangent (rotation derivative included) Newton converges
+    // quadratically once close; the two soft ones need the load cut on the way (the first step
+    // from rest, the linear answer, is metres long there). Iteration counts are measured here
+    // (9, 24); the bounds leave a margin for rounding-level changes only.
+    for (e, max_newton, min_tip) in [(1e6, 12, 0.010), (1e5, 40, 0.06)] {
+        let v = from_fn([20, 2, 2], [L / 20.0, W / 2.0, W / 2.0], |_, _, _| 1);
+        let material = Material::new(e, 0.45, 1000.0);
+        let grid = BranchedGrid::build(&v, &MaterialTable::uniform(&[1], material), 0).unwrap();
+        let model = HexModel::from_grid(&grid);
+        let fixed = FixedNodes::plane(&model.rest, 0, 0.0, 1e-12);
+        let loads = Loads::gravity([0.0, 0.0, -G]);
+        let mut ff = HexForceField::new(&model, Formulation::Corotational);
+        let mut x = model.rest.clone();
+        let report = static_solve(&model, &mut ff, &fixed, &loads, &mut x, 1e-10, max_newton);
+        let tip = model
+            .rest
+            .iter()
+            .zip(&x)
+            .filter(|(p, _)| (p[0] - L).abs() < 1e-12)
+            .map(|(p, q)| p[2] - q[2])
+            .fold(f64::NEG_INFINITY, f64::max);
+        println!("E = {e:e} Pa: {report:?}, tip {:.2} mm", tip * 1e3);
+        assert!(report.converged, "E = {e:e}: {report:?}");
+        assert!(tip >= min_tip, "E = {e:e}: the tip sags {tip} m");
+    }
+}

@@ -89,6 +89,20 @@ pub fn block_jacobi(blocks: &[Mat3]) -> impl Fn(&[Vec3], &mut [Vec3]) + '_ {
     }
 }
 
+/// `b` on the free nodes and its norm, with `x` projected the same way; `None` (and `x`
+/// zeroed) when that right-hand side is zero, whose answer is `x = 0` at once.
+pub(crate) fn free_rhs(fixed: &FixedNodes, b: &[Vec3], x: &mut [Vec3]) -> Option<(Vec<Vec3>, f64)> {
+    let mut bb = b.to_vec();
+    fixed.project(&mut bb);
+    fixed.project(x);
+    let b_norm = dot(&bb, &bb).sqrt();
+    if b_norm == 0.0 {
+        x.fill([0.0; 3]);
+        return None;
+    }
+    Some((bb, b_norm))
+}
+
 /// Solves `A x = b` on the free nodes, starting from `x` (warm start), where `apply(p, out)`
 /// sets `out = A p` and `precondition(r, z)` sets `z ≈ A⁻¹ r`.
 pub fn solve(
@@ -117,14 +131,9 @@ pub fn solve_against(
     reference: f64,
 ) -> CgReport {
     let n = b.len();
-    let mut bb = b.to_vec();
-    fixed.project(&mut bb);
-    fixed.project(x);
-    let b_norm = dot(&bb, &bb).sqrt();
-    if b_norm == 0.0 {
-        x.fill([0.0; 3]);
+    let Some((bb, b_norm)) = free_rhs(fixed, b, x) else {
         return CgReport { iterations: 0, relative_residual: 0.0, converged: true };
-    }
+    };
     let mut ap = vec![[0.0; 3]; n];
     apply(x, &mut ap);
     let mut r: Vec<Vec3> =

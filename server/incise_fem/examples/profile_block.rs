@@ -1,7 +1,8 @@
 //! Steps the hanging block of scene B (gravity and the corner pull) for profiling (`perf record`), printing the time per step
 //! and the CG iterations: `cargo run --release -p incise_fem --example profile_block -- 22,15,12 implicit 0.01 50`.
 //! Schemes: `implicit` (Jacobi-CG), `cholesky-cg` (`REFRESH=n` caps the iterations before a
-//! refactorisation), `cholesky`, `explicit`, and `solve-only` (times one factorisation and the
+//! refactorisation), `cholesky`, `explicit`, `static` (the static solve, block-Jacobi and with
+//! the factor), and `solve-only` (times one factorisation and the
 //! triangular solves; `SINGLE=1` keeps the factor in `f32`). `ROT=1` also times 1,000 rotation
 //! updates, each after a small turn of the whole block.
 
@@ -50,6 +51,22 @@ fn main() {
         CgSettings { tolerance: 1e-6, max_iterations: 2000 },
         solver,
     );
+    if scheme == "static" {
+        // The static solve (scene B's reference at 33,22,18), block-Jacobi and with the factor.
+        for cholesky in [false, true] {
+            let mut ff = HexForceField::new(&model, Formulation::Corotational);
+            let mut x = model.rest.clone();
+            let start = std::time::Instant::now();
+            let report = incise_fem::integrate::static_solve_with(
+                &model, &mut ff, &fixed, &loads, &mut x, 1e-8, 50, cholesky,
+            );
+            println!(
+                "static, cholesky {cholesky}: {report:?} in {:.2} s",
+                start.elapsed().as_secs_f64()
+            );
+        }
+        return;
+    }
     if scheme == "solve-only" {
         let precision = if std::env::var("SINGLE").is_ok() {
             incise_fem::cholesky::Precision::Single

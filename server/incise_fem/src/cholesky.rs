@@ -289,7 +289,7 @@ impl SystemFactor {
                     }
                 }
             }
-            let extra = tangent.and_then(|t| t.symmetric_block(ei));
+            let extra = tangent.and_then(|t| t.symmetric_block(ff, ei));
             for ci in 0..8 {
                 for cj in 0..8 {
                     let k: [[f64; 3]; 3] = std::array::from_fn(|p| {

@@ -21,23 +21,28 @@
 
 use crate::hex_force::{Formulation, HexForceField};
 use crate::model::HexModel;
+use crate::parallel::{map_elements, update_elements};
 use incise_math::Vec3;
-use incise_math::mat3::{Mat3, mul_transpose_vec, mul_vec};
+use incise_math::mat3::{Mat3, cross, mul_transpose_vec, mul_vec};
 
-/// One element's rank-3 term: `C = K P − Q` (24×3) and `G` (3×24), in the element's frame.
+/// One element's rank-3 term in the element's frame: `C = K P − Q` (24×3), and
+/// `(tr S · I − S)⁻¹`, which with the shape-function gradients gives `G` (kept apart: `G`
+/// itself would be 72 more numbers per element to stream through every product).
 #[derive(Clone, Debug)]
 struct Term {
     c: [[f64; 3]; 24],
-    g: [[f64; 24]; 3],
+    m_inv: Mat3,
 }
 
 /// The `∂R/∂x` part of every element's corotational stiffness at one configuration.
-#[derive(Clone, Debug, Default)]
+#[derive(Debug, Default)]
 pub struct RotationTangent {
     /// `None` for an element whose rotation is not differentiable there (`tr S · I − S`
     /// singular: two principal stretches of opposite sign and equal size, the fold of an
     /// inversion), which then keeps `R K Rᵀ`.
     terms: Vec<Option<Term>>,
+    /// Each element's product, computed on the element threads and summed in element order.
+    scratch: std::cell::RefCell<Vec<[f64; 24]>>,
 }
 
 /// `[v]×`, the matrix of `w ↦ v × w`.
@@ -67,8 +72,8 @@ impl RotationTangent {
         if ff.formulation() == Formulation::Linear {
             return Self::default();
         }
-        let terms = (0..model.elements.len()).map(|e| Self::term(model, ff, x, e)).collect();
-        Self { terms }
+        let terms = map_elements(model.elements.len(), |e| Self::term(model, ff, x, e));
+        Self { terms, scratch: std::cell::RefCell::default() }
     }
 
     fn term(model: &HexModel, ff: &HexForceField, x: &[Vec3], e: usize) -> Option<Term> {
@@ -94,15 +99,6 @@ impl RotationTangent {
             })
         });
         let m_inv = inverse(&m)?;
-        let mut g = [[0.0; 24]; 3];
-        for (a, ga) in grad.iter().enumerate() {
-            let block = incise_math::mat3::mul(&m_inv, &cross_matrix(ga));
-            for i in 0..3 {
-                for k in 0..3 {
-                    g[i][3 * a + k] = block[i][k];
-                }
-            }
-        }
         let k = &element.stiffness;
         let rest = |a: usize| model.rest[element.nodes[a] as usize];
         let u: [f64; 24] = std::array::from_fn(|i| local[i / 3][i % 3] - rest(i / 3)[i % 3]);
@@ -119,16 +115,23 @@ impl RotationTangent {
                 row[col] -= q[i % 3][col];
             }
         }
-        Some(Term { c, g })
+        Some(Term { c, m_inv })
+    }
+
+    /// `G`'s columns for corner `a`: `(tr S · I − S)⁻¹ [gₐ]×`.
+    fn g_block(m_inv: &Mat3, ga: &Vec3) -> Mat3 {
+        incise_math::mat3::mul(m_inv, &cross_matrix(ga))
     }
 
     /// The symmetric part of element `e`'s term `(K P − Q) G` in its frame (24×24), or `None`
-    /// where it has none.
+    /// where it has none; `ff` is the force field the term was taken with.
     #[must_use]
-    pub fn symmetric_block(&self, e: usize) -> Option<[[f64; 24]; 24]> {
+    pub fn symmetric_block(&self, ff: &HexForceField, e: usize) -> Option<[[f64; 24]; 24]> {
         let term = self.terms.get(e)?.as_ref()?;
+        let grad = ff.rotation_gradient(e);
+        let g: [Mat3; 8] = std::array::from_fn(|a| Self::g_block(&term.m_inv, &grad[a]));
         let full: [[f64; 24]; 24] = std::array::from_fn(|i| {
-            std::array::from_fn(|j| (0..3).map(|k| term.c[i][k] * term.g[k][j]).sum())
+            std::array::from_fn(|j| (0..3).map(|k| term.c[i][k] * g[j / 3][k][j % 3]).sum())
         });
         Some(std::array::from_fn(|i| std::array::from_fn(|j| 0.5 * (full[i][j] + full[j][i]))))
     }
@@ -143,28 +146,39 @@ impl RotationTangent {
         p: &[Vec3],
         out: &mut [Vec3],
     ) {
-        for (e, term) in self.terms.iter().enumerate() {
-            let Some(term) = term else { continue };
+        let mut scratch = self.scratch.borrow_mut();
+        scratch.resize(self.terms.len(), [0.0; 24]);
+        let terms = &self.terms;
+        update_elements(&mut scratch, |e, local| {
+            let Some(term) = &terms[e] else { return };
             let nodes = &model.elements[e].nodes;
             let r = ff.rotation(e);
-            let mut omega = [0.0; 3];
-            for (a, &n) in nodes.iter().enumerate() {
+            let grad = ff.rotation_gradient(e);
+            // ω = (tr S · I − S)⁻¹ Σₐ gₐ × Rᵀpₐ
+            let mut w = [0.0; 3];
+            for (ga, &n) in grad.iter().zip(nodes) {
                 let y = mul_transpose_vec(r, &p[n as usize]);
-                for (i, w) in omega.iter_mut().enumerate() {
-                    *w += term.g[i][3 * a] * y[0]
-                        + term.g[i][3 * a + 1] * y[1]
-                        + term.g[i][3 * a + 2] * y[2];
+                let c = cross(ga, &y);
+                for k in 0..3 {
+                    w[k] += c[k];
                 }
             }
-            for (a, &n) in nodes.iter().enumerate() {
+            let omega = mul_vec(&term.m_inv, &w);
+            for a in 0..8 {
                 let z: Vec3 = std::array::from_fn(|k| {
                     let row = &term.c[3 * a + k];
                     scale * (row[0] * omega[0] + row[1] * omega[1] + row[2] * omega[2])
                 });
-                let rz = mul_vec(r, &z);
-                let o = &mut out[n as usize];
-                for k in 0..3 {
-                    o[k] += rz[k];
+                local[3 * a..3 * a + 3].copy_from_slice(&mul_vec(r, &z));
+            }
+        });
+        for ((element, term), local) in model.elements.iter().zip(terms).zip(scratch.iter()) {
+            if term.is_some() {
+                for (a, &n) in element.nodes.iter().enumerate() {
+                    let o = &mut out[n as usize];
+                    for k in 0..3 {
+                        o[k] += local[3 * a + k];
+                    }
                 }
             }
         }

@@ -3,7 +3,9 @@
 //! depend on the thread count.
 
 use incise_fem::cg::CgSettings;
-use incise_fem::integrate::{BackwardEuler, LinearSolver, Loads, Rayleigh, State, static_solve};
+use incise_fem::integrate::{
+    BackwardEuler, LinearSolver, Loads, Rayleigh, State, static_solve, static_solve_with,
+};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, Material, MaterialTable};
@@ -117,6 +119,25 @@ fn results_do_not_depend_on_the_thread_count() {
                 .zip(&two.x)
                 .all(|(a, b)| a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits())),
             "{solver:?}: positions differ bitwise"
+        );
+    }
+    // The static solve too: its Newton matrix adds the rotation term (computed per element on
+    // the element threads, summed in element order), with and without a factor.
+    for cholesky in [false, true] {
+        let solve = |threads: usize| {
+            incise_fem::set_thread_override(Some(threads));
+            let mut ff = HexForceField::new(&model, Formulation::Corotational);
+            let mut x = model.rest.clone();
+            let report =
+                static_solve_with(&model, &mut ff, &fixed, &loads, &mut x, 1e-8, 30, cholesky);
+            incise_fem::set_thread_override(None);
+            assert!(report.converged, "{report:?}");
+            x
+        };
+        let (one, two) = (solve(1), solve(2));
+        assert!(
+            one.iter().flatten().zip(two.iter().flatten()).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "static, cholesky {cholesky}: positions differ bitwise"
         );
     }
 }

@@ -254,27 +254,45 @@ impl HexForceField {
                         for frames in &mut quads {
                             let first = start + done;
                             // The four gradients on the lanes, summed as `gradient` sums them.
+                            // Plain loops, not `array::from_fn`, `map` or `all`: whether such
+                            // closures are inlined depends on how the crate falls into codegen
+                            // units, and this pass is hot.
                             let mut f = [[like.constant(0.0); 3]; 3];
-                            let grads: [&[Vec3; 8]; 4] =
-                                std::array::from_fn(|i| grad_of(first + i));
-                            let centred = (0..4).all(|i| off_centre[first + i].is_none());
+                            let mut grads: [&[Vec3; 8]; 4] = [&centre; 4];
+                            let mut centred = true;
+                            for i in 0..4 {
+                                grads[i] = grad_of(first + i);
+                                centred &= off_centre[first + i].is_none();
+                            }
                             for c in 0..8 {
-                                let nodes: [usize; 4] = std::array::from_fn(|i| {
-                                    model.elements[first + i].nodes[c] as usize
-                                });
-                                for (r, row) in f.iter_mut().enumerate() {
-                                    let p = Lane4::from_lanes(like, nodes.map(|n| x[n][r]));
-                                    for (k, fk) in row.iter_mut().enumerate() {
+                                let mut nodes = [0usize; 4];
+                                for i in 0..4 {
+                                    nodes[i] = model.elements[first + i].nodes[c] as usize;
+                                }
+                                for r in 0..3 {
+                                    let mut pv = [0.0; 4];
+                                    for i in 0..4 {
+                                        pv[i] = x[nodes[i]][r];
+                                    }
+                                    let p = Lane4::from_lanes(like, pv);
+                                    for k in 0..3 {
                                         let g = if centred {
                                             like.constant(centre[c][k])
                                         } else {
-                                            Lane4::from_lanes(like, grads.map(|g| g[c][k]))
+                                            let mut gv = [0.0; 4];
+                                            for i in 0..4 {
+                                                gv[i] = grads[i][c][k];
+                                            }
+                                            Lane4::from_lanes(like, gv)
                                         };
-                                        *fk = *fk + p * g;
+                                        f[r][k] = f[r][k] + p * g;
                                     }
                                 }
                             }
-                            let mut q: [Quat; 4] = std::array::from_fn(|i| frames[i].q);
+                            let mut q = [Quat::IDENTITY; 4];
+                            for i in 0..4 {
+                                q[i] = frames[i].q;
+                            }
                             let refined = nearest4(&f, &mut q, ROTATION_ITERATIONS);
                             for ((frame, q), refined) in frames.iter_mut().zip(q).zip(refined) {
                                 *frame = Frame { q, r: refined.matrix };

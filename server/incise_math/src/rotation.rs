@@ -107,20 +107,23 @@ pub fn refine(a: &Mat3, q: &mut Quat, max_iterations: usize) -> Refined {
 #[allow(clippy::inline_always)] // inlined into callers compiled for wider vector instructions
 #[inline(always)]
 pub fn nearest4<W: Lane4>(a: &Matrix<W>, q: &mut [Quat; 4], max_iterations: usize) -> [Refined; 4] {
+    // Plain loops throughout, no `array::map`/`from_fn` closures: whether those are inlined
+    // depends on the caller's codegen unit, and out of line they cost the rotation pass 25 %.
     let like = a[0][0];
-    let wide = |v: [f64; 4]| W::from_lanes(like, v);
-    let lane = |m: &Matrix<W>, l: usize| -> Mat3 {
-        let mut out = [[0.0; 3]; 3];
-        for (o, row) in out.iter_mut().zip(m) {
-            for (x, w) in o.iter_mut().zip(row) {
-                *x = w.lanes()[l];
-            }
+    let mut start = [[0.0; 4]; 4];
+    for l in 0..4 {
+        start[0][l] = q[l].w;
+        for c in 0..3 {
+            start[c + 1][l] = q[l].v[c];
         }
-        out
-    };
+    }
     let mut current = Quaternion {
-        w: wide(q.map(|q| q.w)),
-        v: [wide(q.map(|q| q.v[0])), wide(q.map(|q| q.v[1])), wide(q.map(|q| q.v[2]))],
+        w: W::from_lanes(like, start[0]),
+        v: [
+            W::from_lanes(like, start[1]),
+            W::from_lanes(like, start[2]),
+            W::from_lanes(like, start[3]),
+        ],
     };
     let mut r = matrix_of(&current);
     let mut done: [Option<Refined>; 4] = [None; 4];
@@ -130,31 +133,34 @@ pub fn nearest4<W: Lane4>(a: &Matrix<W>, q: &mut [Quat; 4], max_iterations: usiz
         let alignment = step.alignment.lanes();
         for l in 0..4 {
             if done[l].is_none() && converged[l] {
-                let matrix = lane(&r, l);
+                let matrix = lane_of(&r, l);
                 done[l] = Some(Refined { iterations: it, matrix, alignment: alignment[l] });
             }
         }
         // Lanes that finished keep their rotation; the others take the turn.
-        let moving = W::mask_from_lanes(like, done.map(|d| d.is_none()));
-        let pick = |old: W, new: W| W::select(moving, new, old);
+        let mut still = [false; 4];
+        for l in 0..4 {
+            still[l] = done[l].is_none();
+        }
+        let moving = W::mask_from_lanes(like, still);
         current = Quaternion {
-            w: pick(current.w, step.next.w),
+            w: W::select(moving, step.next.w, current.w),
             v: [
-                pick(current.v[0], step.next.v[0]),
-                pick(current.v[1], step.next.v[1]),
-                pick(current.v[2], step.next.v[2]),
+                W::select(moving, step.next.v[0], current.v[0]),
+                W::select(moving, step.next.v[1], current.v[1]),
+                W::select(moving, step.next.v[2], current.v[2]),
             ],
         };
         for (row, next) in r.iter_mut().zip(&step.next_matrix) {
             for (x, n) in row.iter_mut().zip(next) {
-                *x = pick(*x, *n);
+                *x = W::select(moving, *n, *x);
             }
         }
         let accepted = W::mask_lanes(step.accepted & moving);
         let next_alignment = step.next_alignment.lanes();
         for l in 0..4 {
             if accepted[l] {
-                let matrix = lane(&r, l);
+                let matrix = lane_of(&r, l);
                 done[l] = Some(Refined { iterations: it, matrix, alignment: next_alignment[l] });
             }
         }
@@ -162,15 +168,33 @@ pub fn nearest4<W: Lane4>(a: &Matrix<W>, q: &mut [Quat; 4], max_iterations: usiz
             break;
         }
     }
-    let (w, v) = (current.w.lanes(), current.v.map(W::lanes));
-    std::array::from_fn(|l| match done[l] {
-        Some(first) if first.alignment >= 0.0 => {
-            q[l] = Quat { w: w[l], v: v.map(|c| c[l]) };
-            first
+    let w = current.w.lanes();
+    let v = [current.v[0].lanes(), current.v[1].lanes(), current.v[2].lanes()];
+    let mut out = [Refined { iterations: 0, matrix: [[0.0; 3]; 3], alignment: 0.0 }; 4];
+    for l in 0..4 {
+        out[l] = match done[l] {
+            Some(first) if first.alignment >= 0.0 => {
+                q[l] = Quat { w: w[l], v: [v[0][l], v[1][l], v[2][l]] };
+                first
+            }
+            // Not converged, or on a saddle: what [`nearest`] does from the warm start.
+            _ => nearest(&lane_of(a, l), &mut q[l], max_iterations),
+        };
+    }
+    out
+}
+
+/// Lane `l` of a matrix of lane values.
+#[allow(clippy::inline_always)]
+#[inline(always)]
+fn lane_of<W: Lane4>(m: &Matrix<W>, l: usize) -> Mat3 {
+    let mut out = [[0.0; 3]; 3];
+    for (o, row) in out.iter_mut().zip(m) {
+        for (x, w) in o.iter_mut().zip(row) {
+            *x = w.lanes()[l];
         }
-        // Not converged, or on a saddle: what [`nearest`] does from the warm start.
-        _ => nearest(&lane(a, l), &mut q[l], max_iterations),
-    })
+    }
+    out
 }
 
 /// A 3×3 matrix of lane values.

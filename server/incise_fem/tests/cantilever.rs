@@ -120,7 +120,7 @@ fn static_newton_reaches_large_deflections() {
     // length. With the full corotational tangent (rotation derivative included) Newton converges
     // quadratically once close; the two soft ones need the load cut on the way (the first step
     // from rest, the linear answer, is metres long there). Iteration counts are measured here
-    // (9, 24); the bounds leave a margin for rounding-level changes only.
+    // (10, 25); the bounds leave a margin for rounding-level changes only.
     for (e, max_newton, min_tip) in [(1e6, 12, 0.010), (1e5, 40, 0.06)] {
         let v = from_fn([20, 2, 2], [L / 20.0, W / 2.0, W / 2.0], |_, _, _| 1);
         let material = Material::new(e, 0.45, 1000.0);

@@ -27,7 +27,7 @@ use incise_math::mat3::{Mat3, cross, mul_transpose_vec, mul_vec};
 
 /// One element's rank-3 term in the element's frame: `C = K P − Q` (24×3), and
 /// `(tr S · I − S)⁻¹`, which with the shape-function gradients gives `G` (kept apart: `G`
-/// itself would be 72 more numbers per element to stream through every product).
+/// itself is 72 numbers per element instead of 9 to stream through every product).
 #[derive(Clone, Debug)]
 struct Term {
     c: [[f64; 3]; 24],

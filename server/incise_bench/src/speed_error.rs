@@ -8,8 +8,9 @@
 //! its error is that settled value against the reference: Euler–Bernoulli for C, a static
 //! corotational solve on a 33×22×18 mesh (1.5 times as fine as B3) for B, and for the
 //! 13,648-voxel liver's coarse levels the same model at level 0 (static linear and
-//! corotational solves). A solver that stopped short would show in that value, and a run that never settles
-//! reports no error. The static answer of the row's own mesh and model is
+//! corotational solves; the 109,201-voxel liver's too with `--fine-references`, minutes more).
+//! A solver that stopped short would show in that value, and a run that never settles reports
+//! no error. The static answer of the row's own mesh and model is
 //! reported beside it (`error_static`). A row is stable when its run stays finite and bounded.
 //! Speed is steps per second of the integrator alone, median/min/max over `--repeats` runs. A
 //! hexahedral row's runs follow `--warmup-steps` untimed steps and last about `--run-seconds`
@@ -74,6 +75,10 @@ pub struct SpeedErrorArgs {
     /// Levels of the 13,648-voxel liver to run (each against its level-0 static solve).
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     liver_levels: Vec<u32>,
+    /// Also solve the 109,201-voxel liver at level 0 (364,668 unknowns: about 40 s linear and
+    /// 5 minutes corotational on a 2-core machine), so that the liver-109k rows get an error.
+    #[arg(long)]
+    fine_references: bool,
     /// Also print the fastest stable configuration whose error is at most this (e.g. 0.05).
     #[arg(long)]
     max_error: Option<f64>,
@@ -452,6 +457,42 @@ fn reference_of(
     Ok(reference)
 }
 
+/// Gives the rows of `scene` (a liver at coarse levels) their references: each model's static
+/// answer at level 0 of the same `volume` (read from `file`), so their error is the coarse
+/// levels' discretisation error, the quantity `model = "auto"` calibrates.
+fn set_level0_references(
+    cases: &mut [Case],
+    scene: &str,
+    file: &str,
+    volume: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
+) -> anyhow::Result<()> {
+    eprintln!("reference for {scene}: static solves of {file} at level 0 …");
+    let start = std::time::Instant::now();
+    let fine = liver_case(&format!("{scene}-ref"), volume, 0)?;
+    let reference =
+        reference_of(&fine, Formulation::Linear, "linear: centre-of-mass displacement", start)?;
+    // The corotational model's thin necks of single voxels fold under the organ's weight:
+    // Newton converges there with the complete tangent (`incise_fem::tangent`).
+    let start = std::time::Instant::now();
+    let corotational = static_answer(&fine, Formulation::Corotational, false);
+    match corotational {
+        Some(r) => eprintln!(
+            "  corotational: centre-of-mass displacement {:.4} mm ({:.1} s)",
+            r * 1e3,
+            start.elapsed().as_secs_f64()
+        ),
+        None => eprintln!(
+            "  corotational: the static solve did not converge; the corotational rows have no error"
+        ),
+    }
+    for c in cases.iter_mut().filter(|c| c.scene == scene) {
+        c.reference = Some(reference);
+        c.reference_model = Some(Formulation::Linear);
+        c.corotational_reference = corotational;
+    }
+    Ok(())
+}
+
 #[derive(Clone, Copy)]
 enum Scheme {
     Implicit(LinearSolver),
@@ -595,7 +636,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         Some(points)
     };
     let mut cases: Vec<Case> = Vec::new();
-    let mut liver_13k = None;
+    let (mut liver_13k, mut liver_109k) = (None, None);
     for w in &wanted {
         match w.as_str() {
             "b1" => cases.push(block_case(args, "B1", "b1.toml", None)?),
@@ -614,6 +655,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 liver_13k = Some(small);
                 let large = supported_volume(args, "liver_109k.toml")?;
                 cases.push(liver_case("liver-109k", &large, 3)?);
+                liver_109k = Some(large);
             }
             other => bail!("unknown scene '{other}': expected all, b1, b2, b3, c or liver"),
         }
@@ -642,37 +684,18 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     }
     if let Some(small) = liver_13k.as_ref().filter(|_| cases.iter().any(|c| c.scene == "liver-13k"))
     {
-        // Each model's rows against the same model at level 0: their error is the coarse levels'
-        // discretisation error, the quantity `model = "auto"` calibrates.
-        eprintln!("reference for liver-13k: static solves of liver_13k.toml at level 0 …");
-        let start = std::time::Instant::now();
-        let fine = liver_case("liver-ref", small, 0)?;
-        let reference =
-            reference_of(&fine, Formulation::Linear, "linear: centre-of-mass displacement", start)?;
-        // The corotational model's thin necks of single voxels fold under the organ's weight:
-        // Newton converges there with the complete tangent (`incise_fem::tangent`).
-        let start = std::time::Instant::now();
-        let corotational = static_answer(&fine, Formulation::Corotational, false);
-        match corotational {
-            Some(r) => eprintln!(
-                "  corotational: centre-of-mass displacement {:.4} mm ({:.1} s)",
-                r * 1e3,
-                start.elapsed().as_secs_f64()
-            ),
-            None => eprintln!(
-                "  corotational: the static solve did not converge; the corotational rows have no error"
-            ),
-        }
-        for c in cases.iter_mut().filter(|c| c.scene == "liver-13k") {
-            c.reference = Some(reference);
-            c.reference_model = Some(Formulation::Linear);
-            c.corotational_reference = corotational;
-        }
+        set_level0_references(&mut cases, "liver-13k", "liver_13k.toml", small)?;
     }
-    if cases.iter().any(|c| c.scene == "liver-109k") {
-        eprintln!(
-            "liver-109k has no error column: its level-0 model (about 400,000 unknowns) is beyond a static reference solve here"
-        );
+    if let Some(large) =
+        liver_109k.as_ref().filter(|_| cases.iter().any(|c| c.scene == "liver-109k"))
+    {
+        if args.fine_references {
+            set_level0_references(&mut cases, "liver-109k", "liver_109k.toml", large)?;
+        } else {
+            eprintln!(
+                "liver-109k has no error column: its level-0 model (364,668 unknowns) takes about 6 minutes to solve here; --fine-references solves it"
+            );
+        }
     }
     let bar = crate::progress::stages(cases.len() as u64);
     let mut rows = Vec::new();

@@ -107,6 +107,16 @@ fn bad_input_gets_a_clear_error() {
     let out = bench().args(["grid", "--levels", "9"]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--levels 9"));
+
+    // The report's flags are a contract scripts rely on: each is listed with what it does.
+    let out = bench().args(["speed-error", "--help"]).output().unwrap();
+    assert!(out.status.success());
+    let help = String::from_utf8_lossy(&out.stdout);
+    for flag in
+        ["--scene", "--json", "--csv", "--png", "--max-error", "--peers", "--fine-references"]
+    {
+        assert!(help.contains(flag), "speed-error --help lists {flag}:\n{help}");
+    }
 }
 
 #[test]

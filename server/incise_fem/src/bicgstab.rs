@@ -43,8 +43,8 @@ pub fn solve(
     let mut r: Vec<Vec3> = vec![[0.0; 3]; n];
     axpy(&mut r, &bb, -1.0, &v);
     let shadow = r.clone();
-    let (mut p, mut y, mut s, mut z, mut t) =
-        (vec![[0.0; 3]; n], vec![[0.0; 3]; n], vec![[0.0; 3]; n], vec![[0.0; 3]; n], r.clone());
+    let zeros = || vec![[0.0; 3]; n];
+    let (mut p, mut y, mut s, mut z, mut t) = (zeros(), zeros(), zeros(), zeros(), zeros());
     v.fill([0.0; 3]);
     let (mut rho, mut alpha, mut omega) = (1.0, 1.0, 1.0);
     let mut rel = dot(&r, &r).sqrt() / b_norm;
@@ -70,8 +70,11 @@ pub fn solve(
         }
         alpha = rho / sv;
         axpy(&mut s, &r, -alpha, &v);
-        t.copy_from_slice(x);
-        axpy(x, &t, alpha, &y);
+        for (xi, yi) in x.iter_mut().zip(&y) {
+            for k in 0..3 {
+                xi[k] += alpha * yi[k];
+            }
+        }
         rel = dot(&s, &s).sqrt() / b_norm;
         if rel <= settings.tolerance {
             break;

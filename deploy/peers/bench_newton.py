@@ -1,12 +1,12 @@
-"""Newton (semi-implicit Euler, Warp on the CPU) on the hanging block of BENCHMARKS.md.
+"""Newton (semi-implicit Euler, Warp on the CPU) on the hanging block of docs/benchmarks.md.
 
-The companion of ../shared/peers/bench_mujoco.py, on the same scenes (its `scenes.py`: the same
+The companion of bench_mujoco.py beside it, on the same scenes (scenes.py beside it: the same
 grid split into 6 tetrahedra per hexahedron, the top face held, gravity and the 0.5 N corner
 pull). Prints one row per scene in bench_mujoco.py's layout: steps/s at dt = 1 ms (median, min,
 max of 5 runs), stability at 1 ms and 10 ms, and the pulled corner's displacement after 2 s.
 
     python3 -m venv ~/.cache/newton-venv && ~/.cache/newton-venv/bin/pip install newton==1.8.0
-    ~/.cache/newton-venv/bin/python deploy/peers/bench_newton.py S1 S2 S3 [--scenes-dir ../shared/peers]
+    ~/.cache/newton-venv/bin/python deploy/peers/bench_newton.py S1 S2 S3 [--scenes-dir DIR]
 
 Newton's tetrahedra are Neo-Hookean (Lamé parameters from E and nu); its stiffness damping is set
 to MuJoCo's 1e-3 s times the Lamé parameters.
@@ -27,9 +27,8 @@ DAMPING = 1e-3
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scenes", nargs="*", default=["S1", "S2", "S3"])
-    ap.add_argument("--scenes-dir", default=os.path.join(os.path.dirname(__file__), "..", "..", "..",
-                                                    "shared", "peers"),
-                    help="folder holding scenes.py (../shared/peers)")
+    ap.add_argument("--scenes-dir", default=os.path.dirname(os.path.abspath(__file__)),
+                    help="folder holding scenes.py (default: this script's folder)")
     args = ap.parse_args()
     sys.path.insert(0, os.path.abspath(args.scenes_dir))
     import scenes as S  # noqa: E402

@@ -1,4 +1,4 @@
-//! Peers measured on this machine: the tables `../shared/peers/bench_mujoco.py` (MuJoCo's flex on
+//! Peers measured on this machine: the tables `deploy/peers/bench_mujoco.py` (MuJoCo's flex on
 //! scene B) and `deploy/peers/bench_newton.py` (Newton's semi-implicit soft mesh, same layout)
 //! print, read so that `speed-error --peers FILE` can put them on the speed-vs-error plot at their
 //! measured error and compare them with our rows at equal error, in one job.

@@ -1,6 +1,6 @@
 //! The speed-vs-error plot (log-log, one series per model) drawn with `plotters` into a PNG, with
 //! the peers as labelled markers: measured on this machine at their error (`--peers`), or else
-//! their published speeds (BENCHMARKS.md, first run) in a band above 100 % error.
+//! their published speeds (docs/benchmarks.md, first run) in a band above 100 % error.
 
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
@@ -9,7 +9,7 @@ use std::path::Path;
 /// Where Debian's `fonts-dejavu-core` puts the font the labels use.
 const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
 
-/// Peers' steps/s at dt = 1 ms on B1–B3 (BENCHMARKS.md, first run); their error is not published.
+/// Peers' steps/s at dt = 1 ms on B1–B3 (docs/benchmarks.md, first run); their error is not published.
 const PEERS: [(&str, [f64; 3]); 3] = [
     ("MuJoCo implicit", [738.0, 171.0, 22.2]),
     ("MuJoCo explicit", [3_128.0, 916.0, 126.0]),
@@ -142,7 +142,7 @@ pub fn speed_error_png(
         }
     }
     chart.draw_series(std::iter::once(Text::new(
-        "peers: published speed only (BENCHMARKS.md, first run); their error is not published",
+        "peers: published speed only (docs/benchmarks.md, first run); their error is not published",
         (x_lo * 1.1, band / 1.1),
         ("sans-serif", 12),
     )))?;

@@ -1,4 +1,4 @@
-//! `incise-bench speed-error`: speed against error on BENCHMARKS.md scenes B (hanging block) and
+//! `incise-bench speed-error`: speed against error on docs/benchmarks.md scenes B (hanging block) and
 //! C (cantilever) and on the liver, for each model, integrator and dt ∈ {1 ms, 10 ms}. The scenes
 //! are the files in `deploy/scenes/` (`--scene-dir`), built by `incise_sim::Simulation` as a
 //! server would build them.
@@ -91,7 +91,7 @@ pub struct SpeedErrorArgs {
     /// Draw speed against error (log-log) to this PNG.
     #[arg(long, value_name = "PATH")]
     png: Option<PathBuf>,
-    /// The table `../shared/peers/bench_mujoco.py S1 S2 S3 nocant` printed, saved to a file (run it
+    /// The table `deploy/peers/bench_mujoco.py S1 S2 S3 nocant` printed, saved to a file (run it
     /// right before or after, on the same machine): its rows get their error against the same
     /// reference, go on the plot, and are compared with our fastest stable row at equal or lower
     /// error and the same dt. `deploy/peers/bench_newton.py`'s table (Newton's semi-implicit
@@ -538,7 +538,7 @@ fn stepper(
 
 /// Takes `--warmup-steps` untimed steps, then a short trial, and returns the step count of one
 /// timed run: enough to last about `--run-seconds`, at least `--steps`, at most `--max-steps`.
-/// The peers' scripts (`../shared/peers/scenes.py`: `pick_steps`, `time_runs`) also warm up and
+/// The peers' scripts (`deploy/peers/scenes.py`: `pick_steps`, `time_runs`) also warm up and
 /// choose their step counts under the same 2,000-step cap, so neither side's figure carries
 /// first-step costs (allocation, page faults, the first solves' empty history) the other does
 /// not, and fast rows on both sides time the same stretch of simulated time.

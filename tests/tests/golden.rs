@@ -4,7 +4,7 @@
 //! why the hashes moved and regenerates them (`GOLDEN_PRINT=1 cargo test --release -p incise_tests
 //! --test golden -- --nocapture` prints the new values).
 //!
-//! The hashes hold on any x86-64 or AArch64 machine: the element kernels pick AVX2 at run time
+//! The hashes hold on any x86-64 machine: the element kernels pick AVX2 at run time
 //! and fall back to code that gives the same bits, and the sums over threads are formed in a fixed
 //! order whatever the thread count.
 
@@ -15,7 +15,8 @@ use incise_tests::scene;
 /// state hash.
 fn hash_after(name: &str, steps: usize) -> u64 {
     let path = scene(name);
-    let (config, volume) = incise_io::read_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (config, volume) =
+        incise_scene::read_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
     let mut sim = Simulation::new(&config, &volume, &path.display().to_string())
         .unwrap_or_else(|e| panic!("{name}: {e}"));
     let mut hash = 0;

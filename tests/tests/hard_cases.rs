@@ -3,8 +3,9 @@
 //! elements and cutting while moving. Every case checks that all values stay finite and the
 //! energy bounded, plus the invariant it names.
 
-use incise_fem::cg::CgSettings;
-use incise_fem::integrate::{BackwardEuler, Loads, Rayleigh, State, static_solve};
+use incise_fem::linsolve::cg::CgSettings;
+use incise_fem::model::{Loads, State};
+use incise_fem::ode::{BackwardEuler, Rayleigh, static_solve};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::procedural::{TISSUE, TUMOUR, ellipsoid_with_inclusion, from_fn};
 use incise_grid::{BranchedGrid, GridEdit, LabelVolume, Material, MaterialTable};

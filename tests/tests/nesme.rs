@@ -16,8 +16,9 @@
 //! cell holds a thin neck of material beside bulk: the trilinear field strains the bulk with the
 //! neck.
 
-use incise_fem::cg::{self, CgSettings};
-use incise_fem::integrate::{Loads, static_solve};
+use incise_fem::linsolve::cg::{self, CgSettings};
+use incise_fem::model::Loads;
+use incise_fem::ode::static_solve;
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::hex8::{corner, shape};
 use incise_grid::procedural::from_fn;

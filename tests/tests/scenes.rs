@@ -1,4 +1,4 @@
-//! The committed scene files (`deploy/scenes/*.toml`) through `incise_io::read_scene` and
+//! The committed scene files (`deploy/scenes/*.toml`) through `incise_scene::read_scene` and
 //! `incise_sim::Simulation`, and the errors a broken scene file gets.
 
 use incise_math::Vec3;
@@ -8,7 +8,8 @@ use incise_tests::scene;
 
 fn load(name: &str) -> Simulation {
     let path = scene(name);
-    let (config, volume) = incise_io::read_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (config, volume) =
+        incise_scene::read_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
     Simulation::new(&config, &volume, &path.display().to_string())
         .unwrap_or_else(|e| panic!("{name}: {e}"))
 }
@@ -359,7 +360,7 @@ fn auto_model_runs_on_the_coarsest_level_within_its_error() {
     assert!(c.levels.iter().any(|l| l.level == 0 && l.error == 0.0));
     // A looser bound never picks a finer level.
     let path = scene("liver_auto.toml");
-    let (mut config, volume) = incise_io::read_scene(&path).unwrap();
+    let (mut config, volume) = incise_scene::read_scene(&path).unwrap();
     config.auto_level = config.auto_level.map(|a| AutoLevel { max_error: 0.95, ..a });
     let looser = Simulation::new(&config, &volume, &path.display().to_string()).unwrap();
     assert!(looser.config().level >= c.chosen);
@@ -589,7 +590,7 @@ fn the_liver_hangs_from_its_gallbladder() {
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("liver_gallbladder.toml");
     std::fs::write(&path, text).unwrap();
-    let (config, volume) = incise_io::read_scene(&path).unwrap();
+    let (config, volume) = incise_scene::read_scene(&path).unwrap();
     let mut sim = Simulation::new(&config, &volume, &path.display().to_string()).unwrap();
     // Held: exactly the nodes of the elements holding a gallbladder voxel.
     let (grid, model) = (sim.grid().unwrap(), sim.model().unwrap());
@@ -708,7 +709,7 @@ fn an_explicit_scene_takes_smaller_steps_when_a_cut_lowers_its_limit() {
 fn the_mass_matrix_is_a_scene_key() {
     let consistent = GOOD.replace("dt = 0.001", "dt = 0.001\nmass = \"consistent\"");
     let config = SceneConfig::from_toml(&consistent, "t.toml").unwrap();
-    assert_eq!(config.mass, incise_fem::integrate::MassMatrix::Consistent);
+    assert_eq!(config.mass, incise_fem::ode::MassMatrix::Consistent);
     let volume = config.procedural_volume().unwrap();
     let mut sim = Simulation::new(&config, &volume, "t.toml").unwrap();
     for _ in 0..5 {

@@ -19,10 +19,10 @@
 
 use crate::timing::measure;
 use anyhow::{Context, bail};
-use incise_fem::cg::CgSettings;
-use incise_fem::integrate::{
-    BackwardEuler, LinearSolver, Loads, Rayleigh, State, explicit_step, stable_dt,
-    static_solve_with,
+use incise_fem::linsolve::cg::CgSettings;
+use incise_fem::model::{Loads, State};
+use incise_fem::ode::{
+    BackwardEuler, LinearSolver, Rayleigh, explicit_step, stable_dt, static_solve_with,
 };
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_math::Vec3;
@@ -200,7 +200,7 @@ fn load_scene(
     voxels: Option<[usize; 3]>,
 ) -> anyhow::Result<(SceneConfig, Simulation, incise_grid::LabelVolume)> {
     let path = args.scene_dir.join(file);
-    let (mut config, mut volume) = incise_io::read_scene(&path)
+    let (mut config, mut volume) = incise_scene::read_scene(&path)
         .with_context(|| format!("reading scene {} (see --scene-dir)", path.display()))?;
     if let Some(level) = level {
         config.level = level;
@@ -980,13 +980,14 @@ fn tensor_mass_rows(
     cells: [usize; 3],
     args: &SpeedErrorArgs,
 ) -> Vec<Row> {
-    use incise_fem::tet::explicit::{CentralDifference, stable_dt as tet_stable_dt};
-    use incise_fem::tet::relax::{Prescribed, RelaxSettings, Statics, relax};
-    use incise_fem::tet::{
-        Elasticity, Lame, TensorMassForceField, TetMaterial, TetModel, TetTopology,
+    use incise_fem::forcefield::tet::{
+        Elasticity, Lame, TensorMassForceField, TetMaterial, TetModel,
     };
+    use incise_fem::ode::central_difference::{CentralDifference, stable_dt as tet_stable_dt};
+    use incise_fem::ode::relax::{Prescribed, RelaxSettings, Statics, relax};
+    use incise_mesh::TetTopology;
     let spacing: Vec3 = std::array::from_fn(|a| size[a] / cells[a] as f64);
-    let mesh = incise_fem::tet::generate::lattice_to_tets(
+    let mesh = incise_mesh::generate::lattice_to_tets(
         cells,
         |_, _, _| Some(1),
         |i, j, k| [i as f64 * spacing[0], j as f64 * spacing[1], k as f64 * spacing[2]],

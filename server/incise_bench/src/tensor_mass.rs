@@ -18,17 +18,18 @@
 use crate::progress;
 use anyhow::{Context, bail};
 use incise_fem::FixedNodes;
-use incise_fem::integrate::static_solve;
-use incise_fem::tet::element::Elasticity;
-use incise_fem::tet::explicit::{CentralDifference, stable_dt};
-use incise_fem::tet::generate::{KUHN, cylinder, cylinder_top_centre, from_volume};
-use incise_fem::tet::incompressible::Incompressibility;
-use incise_fem::tet::mesh::signed_volume;
-use incise_fem::tet::relax::{Prescribed, RelaxSettings, Statics, relax};
-use incise_fem::tet::{Lame, TensorMassForceField, TetMaterial, TetMesh, TetModel, TetTopology};
+use incise_fem::forcefield::tet::element::Elasticity;
+use incise_fem::forcefield::tet::incompressible::Incompressibility;
+use incise_fem::forcefield::tet::{Lame, TensorMassForceField, TetMaterial, TetModel};
+use incise_fem::ode::central_difference::{CentralDifference, stable_dt};
+use incise_fem::ode::relax::{Prescribed, RelaxSettings, Statics, relax};
+use incise_fem::ode::static_solve;
 use incise_fem::{Formulation, HexForceField, HexModel};
 use incise_grid::{BranchedGrid, LabelFilter, LabelVolume, Material, MaterialTable};
 use incise_math::Vec3;
+use incise_mesh::generate::{KUHN, cylinder, cylinder_top_centre, from_volume};
+use incise_mesh::signed_volume;
+use incise_mesh::{TetMesh, TetTopology};
 use serde::Serialize;
 use std::time::Instant;
 
@@ -273,7 +274,7 @@ fn hex_volume_change(across: usize, fraction: f64) -> anyhow::Result<(f64, bool,
     let fixed = FixedNodes::plane(&model.rest, 2, 0.0, 1e-12).with(top);
     let mut ff = HexForceField::new(&model, Formulation::Corotational);
     let mut x = model.rest.clone();
-    let loads = incise_fem::integrate::Loads::gravity([0.0; 3]);
+    let loads = incise_fem::model::Loads::gravity([0.0; 3]);
     let steps = 20;
     for s in 1..=steps {
         x[top][0] = model.rest[top][0] + fraction * height * f64::from(s) / f64::from(steps);

@@ -6,8 +6,9 @@
 //! triangular solves; `SINGLE=1` keeps the factor in `f32`). `ROT=1` also times 1,000 rotation
 //! updates, each after a small turn of the whole block.
 
-use incise_fem::cg::CgSettings;
-use incise_fem::integrate::{BackwardEuler, LinearSolver, Loads, Rayleigh, State, explicit_step};
+use incise_fem::linsolve::cg::CgSettings;
+use incise_fem::model::{Loads, State};
+use incise_fem::ode::{BackwardEuler, LinearSolver, Rayleigh, explicit_step};
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, Material, MaterialTable};
@@ -57,7 +58,7 @@ fn main() {
             let mut ff = HexForceField::new(&model, Formulation::Corotational);
             let mut x = model.rest.clone();
             let start = std::time::Instant::now();
-            let report = incise_fem::integrate::static_solve_with(
+            let report = incise_fem::ode::static_solve_with(
                 &model, &mut ff, &fixed, &loads, &mut x, 1e-8, 50, cholesky,
             );
             println!(
@@ -69,12 +70,13 @@ fn main() {
     }
     if scheme == "solve-only" {
         let precision = if std::env::var("SINGLE").is_ok() {
-            incise_fem::cholesky::Precision::Single
+            incise_fem::linsolve::cholesky::Precision::Single
         } else {
-            incise_fem::cholesky::Precision::Double
+            incise_fem::linsolve::cholesky::Precision::Double
         };
-        let mut f = incise_fem::cholesky::SystemFactor::with_precision(&model, &fixed, precision)
-            .expect("pattern");
+        let mut f =
+            incise_fem::linsolve::cholesky::SystemFactor::with_precision(&model, &fixed, precision)
+                .expect("pattern");
         let start = std::time::Instant::now();
         f.factorize(&model, &ff, 1.0, dt * dt).expect("factor");
         println!(

@@ -3,10 +3,11 @@
 //! (cells across and along; `linear`, `svk` or `svk-incompressible`).
 
 use incise_fem::FixedNodes;
-use incise_fem::tet::explicit::CentralDifference;
-use incise_fem::tet::generate::cylinder;
-use incise_fem::tet::incompressible::Incompressibility;
-use incise_fem::tet::{Elasticity, Lame, TensorMassForceField, TetMaterial, TetModel, TetTopology};
+use incise_fem::forcefield::tet::incompressible::Incompressibility;
+use incise_fem::forcefield::tet::{Elasticity, Lame, TensorMassForceField, TetMaterial, TetModel};
+use incise_fem::ode::central_difference::CentralDifference;
+use incise_mesh::TetTopology;
+use incise_mesh::generate::cylinder;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -28,7 +29,7 @@ fn main() {
         (scheme == "svk-incompressible").then_some(Incompressibility { kappa: lame.lambda });
     let fixed = FixedNodes::plane(&model.rest, 2, 0.0, 1e-9);
     let mut x = model.rest.clone();
-    let stable = incise_fem::tet::explicit::stable_dt(&model, &ff, &fixed);
+    let stable = incise_fem::ode::central_difference::stable_dt(&model, &ff, &fixed);
     let mut cd = CentralDifference::new(&model, &ff, &fixed, &x, stable, 5.0).expect("stable");
     let gravity: Vec<[f64; 3]> = model.lumped_mass.iter().map(|m| [m * 9.81, 0.0, 0.0]).collect();
     let start = std::time::Instant::now();

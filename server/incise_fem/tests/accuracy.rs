@@ -1,8 +1,10 @@
 //! Accuracy of the hexahedral force fields against known answers: rigid motions, the patch test,
 //! linear vs corotational at small load, finite differences of the elastic energy, and the
-//! Euler–Bernoulli cantilever of BENCHMARKS.md scene C.
+//! Euler–Bernoulli cantilever of docs/benchmarks.md scene C.
 
-use incise_fem::integrate::{Loads, static_solve};
+use incise_fem::model::Loads;
+
+use incise_fem::ode::static_solve;
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, Material, MaterialTable};
@@ -242,7 +244,7 @@ fn the_full_corotational_tangent_matches_finite_differences_under_large_strain()
     // the order of the strain; with `RotationTangent` the product must match central
     // differences of the forces to truncation and rotation round-off: 1e-6 relative (h = 1e-7
     // on a 2 cm block: O(h²) truncation ~1e-10, round-off ~1e-16·|f|/h ~1e-9 of |K d|).
-    use incise_fem::tangent::RotationTangent;
+    use incise_fem::forcefield::hex::tangent::RotationTangent;
     let material = Material::new(3e3, 0.45, 1000.0);
     let holed = {
         let v = from_fn([4, 4, 4], [0.005; 3], |x, y, z| {

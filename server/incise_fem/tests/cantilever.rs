@@ -1,4 +1,4 @@
-//! BENCHMARKS.md scene C: a 0.1 × 0.01 × 0.01 m beam clamped at x = 0 under its own weight
+//! docs/benchmarks.md scene C: a 0.1 × 0.01 × 0.01 m beam clamped at x = 0 under its own weight
 //! (E = 1 MPa, ν = 0.3, ρ = 1000). Euler–Bernoulli gives a tip deflection of `qL⁴/(8EI)` = 14.715 mm.
 //!
 //! Trilinear hexahedra with full integration lock in bending on coarse meshes and converge towards
@@ -7,7 +7,9 @@
 //! prints the deflection per resolution with its observed convergence order and asserts the finest
 //! level within 2 % of 14.715 mm (1 % theory gap + 1 % remaining discretisation error).
 
-use incise_fem::integrate::{Loads, static_solve};
+use incise_fem::model::Loads;
+
+use incise_fem::ode::static_solve;
 use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, Material, MaterialTable};
@@ -69,8 +71,9 @@ fn cantilever_converges_to_euler_bernoulli() {
 
 #[test]
 fn implicit_euler_settles_on_the_static_cantilever() {
-    use incise_fem::cg::CgSettings;
-    use incise_fem::integrate::{BackwardEuler, LinearSolver, Rayleigh, State};
+    use incise_fem::linsolve::cg::CgSettings;
+    use incise_fem::model::State;
+    use incise_fem::ode::{BackwardEuler, LinearSolver, Rayleigh};
     let v = from_fn([20, 2, 2], [L / 20.0, W / 2.0, W / 2.0], |_, _, _| 1);
     let grid =
         BranchedGrid::build(&v, &MaterialTable::uniform(&[1], Material::new(1e6, 0.3, 1000.0)), 0)

@@ -1,12 +1,11 @@
-//! The integrators on BENCHMARKS.md scene B (the hanging block): the implicit solver settles on
+//! The integrators on docs/benchmarks.md scene B (the hanging block): the implicit solver settles on
 //! the static answer at dt = 1 ms and 10 ms, an inverted element recovers, and results do not
 //! depend on the thread count.
 
-use incise_fem::cg::CgSettings;
-use incise_fem::integrate::{
-    BackwardEuler, LinearSolver, Loads, Rayleigh, State, static_solve, static_solve_with,
-};
-use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
+use incise_fem::linsolve::cg::CgSettings;
+use incise_fem::model::{Loads, State};
+use incise_fem::ode::{BackwardEuler, LinearSolver, Rayleigh, static_solve, static_solve_with};
+use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
 use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, Material, MaterialTable};
 use incise_math::Vec3;
@@ -94,9 +93,10 @@ fn results_do_not_depend_on_the_thread_count() {
     // factor is big enough that the substitutions run the two halves of the dissection on two
     // threads.
     let (model, fixed, loads) = scene_b([16, 12, 9]);
-    let run = |threads: &str, solver: LinearSolver| {
-        incise_fem::set_thread_override(threads.parse().ok());
-        let mut ff = HexForceField::new(&model, Formulation::Corotational);
+    let exec = |threads| Executor::new(threads, Idle::DEFAULT_SPIN);
+    let run = |threads: usize, solver: LinearSolver| {
+        let mut ff =
+            HexForceField::new(&model, Formulation::Corotational).with_executor(exec(threads));
         let mut state = State::at_rest(&model);
         let mut be = BackwardEuler::with_solver(
             1e-2,
@@ -107,12 +107,11 @@ fn results_do_not_depend_on_the_thread_count() {
         for _ in 0..5 {
             be.step(&model, &mut ff, &fixed, &loads, &mut state);
         }
-        incise_fem::set_thread_override(None);
         state
     };
     for solver in [LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }] {
-        let one = run("1", solver);
-        let two = run("2", solver);
+        let one = run(1, solver);
+        let two = run(2, solver);
         assert!(
             one.x
                 .iter()
@@ -125,12 +124,11 @@ fn results_do_not_depend_on_the_thread_count() {
     // the element threads, summed in element order), with and without a factor.
     for cholesky in [false, true] {
         let solve = |threads: usize| {
-            incise_fem::set_thread_override(Some(threads));
-            let mut ff = HexForceField::new(&model, Formulation::Corotational);
+            let mut ff =
+                HexForceField::new(&model, Formulation::Corotational).with_executor(exec(threads));
             let mut x = model.rest.clone();
             let report =
                 static_solve_with(&model, &mut ff, &fixed, &loads, &mut x, 1e-8, 30, cholesky);
-            incise_fem::set_thread_override(None);
             assert!(report.converged, "{report:?}");
             x
         };
@@ -258,8 +256,8 @@ fn a_cut_that_keeps_every_node_keeps_the_preconditioner() {
 /// First bending period of scene C's cantilever (`cells` along its length), released from its
 /// static deflection under its own weight with no load and no damping: the mean spacing of the
 /// tip's upward zero crossings.
-fn cantilever_period(cells: usize, mass: incise_fem::integrate::MassMatrix) -> f64 {
-    use incise_fem::integrate::static_solve_with;
+fn cantilever_period(cells: usize, mass: incise_fem::ode::MassMatrix) -> f64 {
+    use incise_fem::ode::static_solve_with;
     let (l, w) = (0.1, 0.01);
     let across = cells / 10;
     let v = from_fn(
@@ -317,7 +315,7 @@ fn cantilever_period(cells: usize, mass: incise_fem::integrate::MassMatrix) -> f
 
 #[test]
 fn the_consistent_mass_raises_the_beam_frequency_and_both_converge() {
-    use incise_fem::integrate::MassMatrix;
+    use incise_fem::ode::MassMatrix;
     // Euler–Bernoulli: f₁ = (1.8751² / 2π) √(EI / (ρA L⁴)).
     let (e, rho, l, w): (f64, f64, f64, f64) = (1e6, 1000.0, 0.1, 0.01);
     let f_eb = 1.8751f64.powi(2) / (2.0 * std::f64::consts::PI)
@@ -341,7 +339,7 @@ fn the_consistent_mass_raises_the_beam_frequency_and_both_converge() {
 
 #[test]
 fn a_falling_block_falls_the_same_with_either_mass() {
-    use incise_fem::integrate::MassMatrix;
+    use incise_fem::ode::MassMatrix;
     // A rigid translation: M·(uniform v) is the lumped mass times v with either matrix, so the
     // free fall (with mass damping) is the same up to CG's tolerance.
     let (model, _, _) = scene_b([5, 4, 3]);
@@ -382,7 +380,7 @@ fn a_falling_block_falls_the_same_with_either_mass() {
 /// (at ω dt = 2.2 the highest mode grows 2.4× per step, at 1.8 its amplitude stays put).
 #[test]
 fn the_explicit_limit_separates_bounded_from_growing_steps() {
-    use incise_fem::integrate::{explicit_step, stable_dt};
+    use incise_fem::ode::{explicit_step, stable_dt};
     let (model, fixed, _) = scene_b([7, 5, 4]);
     let mut ff = HexForceField::new(&model, Formulation::Linear);
     let limit = stable_dt(&model, &ff, &fixed);

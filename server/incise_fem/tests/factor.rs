@@ -2,8 +2,8 @@
 //! substitutions: it solves the system, in `f32` it is a close preconditioner, and the two halves
 //! of the dissection give the same bits on one thread and on two.
 
-use incise_fem::cholesky::{Precision, SystemFactor};
-use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
+use incise_fem::linsolve::cholesky::{Precision, SystemFactor};
+use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
 use incise_math::Vec3;
 
 mod common;
@@ -84,23 +84,23 @@ fn the_halves_of_the_dissection_give_the_same_bits_on_one_and_two_threads() {
     let ff = twisted(&model);
     let (a, b) = (1.02, 2e-4);
     let r = load(model.node_count());
-    let mut factor = SystemFactor::with_precision(&model, &fixed, Precision::Single).unwrap();
-    factor.factorize(&model, &ff, a, b).unwrap();
-    assert!(factor.runs_in_halves(), "the top dissection splits the supernodes");
-    assert!(factor.factor_entries() > 1_000_000);
     let solve = |threads: usize| {
-        incise_fem::set_thread_override(Some(threads));
+        let mut factor = SystemFactor::with_precision(&model, &fixed, Precision::Single)
+            .unwrap()
+            .with_executor(Executor::new(threads, Idle::DEFAULT_SPIN));
+        factor.factorize(&model, &ff, a, b).unwrap();
+        assert!(factor.runs_in_halves(), "the top dissection splits the supernodes");
+        assert!(factor.factor_entries() > 1_000_000);
         let mut z = vec![[0.0; 3]; model.node_count()];
         factor.solve(&r, &mut z);
-        incise_fem::set_thread_override(None);
-        z
+        (z, factor.factor_entries())
     };
-    let (one, two) = (solve(1), solve(2));
+    let ((one, entries), (two, _)) = (solve(1), solve(2));
     assert!(
         one.iter().flatten().zip(two.iter().flatten()).all(|(p, q)| p.to_bits() == q.to_bits())
     );
     let float = residual(&model, &ff, &fixed, a, b, &r, &one);
-    println!("B3 f32 factor: {} entries, relative residual {float:.2e}", factor.factor_entries());
+    println!("B3 f32 factor: {entries} entries, relative residual {float:.2e}");
     assert!(float < 1e-4, "f32 residual {float:e}");
 }
 

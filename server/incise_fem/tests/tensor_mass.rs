@@ -3,14 +3,15 @@
 //! Venant-Kirchhoff is invariant under rotation while the linear model is not (Fig. 3's point),
 //! and removing tetrahedra equals building the mesh without them.
 
-use incise_fem::tet::element::Elasticity;
-use incise_fem::tet::element::Fibre;
-use incise_fem::tet::generate::{cylinder, from_volume};
-use incise_fem::tet::topology::{TetTopology, check_closed, check_manifold};
-use incise_fem::tet::{Lame, TensorMassForceField, TetMaterial, TetMesh, TetModel};
+use incise_fem::forcefield::tet::element::Elasticity;
+use incise_fem::forcefield::tet::element::Fibre;
+use incise_fem::forcefield::tet::{Lame, TensorMassForceField, TetMaterial, TetModel};
 use incise_grid::LabelVolume;
 use incise_math::Vec3;
 use incise_math::mat3::{axis_angle, mul_vec};
+use incise_mesh::TetMesh;
+use incise_mesh::generate::{cylinder, from_volume};
+use incise_mesh::topology::{TetTopology, check_closed, check_manifold};
 use proptest::prelude::*;
 
 fn material(_: u32) -> TetMaterial {
@@ -248,8 +249,8 @@ proptest! {
 mod explicit {
     use super::*;
     use incise_fem::FixedNodes;
-    use incise_fem::tet::explicit::{CentralDifference, StepTooLarge};
-    use incise_fem::tet::incompressible::Incompressibility;
+    use incise_fem::forcefield::tet::incompressible::Incompressibility;
+    use incise_fem::ode::central_difference::{CentralDifference, StepTooLarge};
 
     #[test]
     fn a_step_above_the_stable_one_is_refused() {
@@ -278,7 +279,7 @@ mod explicit {
             .iter()
             .map(|p| [p[0] + 0.1 * p[2] * p[2] / 0.03, p[1], 1.1 * p[2]])
             .collect();
-        let stable = incise_fem::tet::explicit::stable_dt(&model, &ff, &fixed);
+        let stable = incise_fem::ode::central_difference::stable_dt(&model, &ff, &fixed);
         let mut cd = CentralDifference::new(&model, &ff, &fixed, &x, stable, 0.0).unwrap();
         let energy = |x: &[Vec3], cd: &CentralDifference| {
             let v = cd.velocities(x);
@@ -393,18 +394,19 @@ mod adaptive {
         let mesh = cylinder(0.01, 0.03, 4, 12);
         let model = TetModel::new(&mesh, material);
         let topo = TetTopology::new(&mesh);
-        let top = incise_fem::tet::generate::cylinder_top_centre(&mesh);
+        let top = incise_mesh::generate::cylinder_top_centre(&mesh);
         let fixed = incise_fem::FixedNodes::plane(&model.rest, 2, 0.0, 1e-12).with(top);
         let run = |adaptive: bool| -> (Vec<Vec3>, usize) {
             let mut ff = TensorMassForceField::new(&model, &topo, Elasticity::StVenantKirchhoff);
             if adaptive {
                 ff.enable_adaptive(&model, 0.002, 0.2);
             }
-            let dt = incise_fem::tet::explicit::stable_dt(&model, &ff, &fixed);
+            let dt = incise_fem::ode::central_difference::stable_dt(&model, &ff, &fixed);
             let mut x = model.rest.clone();
-            let mut cd =
-                incise_fem::tet::explicit::CentralDifference::new(&model, &ff, &fixed, &x, dt, 5.0)
-                    .unwrap();
+            let mut cd = incise_fem::ode::central_difference::CentralDifference::new(
+                &model, &ff, &fixed, &x, dt, 5.0,
+            )
+            .unwrap();
             let mut count = 0;
             for step in 1..=6_000 {
                 x[top][0] = model.rest[top][0] + 0.0075 * (f64::from(step) / 6_000.0);
@@ -459,15 +461,14 @@ mod adaptive {
         let mesh = cylinder(0.01, 0.03, 6, 9);
         let model = TetModel::new(&mesh, material);
         let topo = TetTopology::new(&mesh);
-        let tm = TensorMassForceField::new(&model, &topo, Elasticity::StVenantKirchhoff);
-        let (_, _, cubic, quartic) = tm.term_counts();
+        let field = |threads| {
+            TensorMassForceField::new(&model, &topo, Elasticity::StVenantKirchhoff)
+                .with_executor(incise_fem::Executor::new(threads, incise_fem::Idle::DEFAULT_SPIN))
+        };
+        let (one, two) = (field(1), field(2));
+        let (_, _, cubic, quartic) = one.term_counts();
         assert!(cubic + quartic >= 20_000, "{cubic} + {quartic}");
         let x = deformed(&model.rest);
-        incise_fem::set_thread_override(Some(1));
-        let one = forces(&tm, &model, &x);
-        incise_fem::set_thread_override(Some(2));
-        let two = forces(&tm, &model, &x);
-        incise_fem::set_thread_override(None);
-        assert_eq!(one, two);
+        assert_eq!(forces(&one, &model, &x), forces(&two, &model, &x));
     }
 }

@@ -4,8 +4,8 @@
 //! function) and its message says what was wrong and where: the header field, the byte count, the
 //! voxel.
 
-use incise_fem::tet::TetMeshError;
 use incise_grid::VolumeError;
+use incise_mesh::TetMeshError;
 use thiserror::Error;
 
 /// Why a label volume or a tetrahedral mesh could not be read or written.
@@ -114,7 +114,7 @@ pub enum IoError {
         what: String,
     },
     /// Tetrahedra that parse but do not form a valid mesh (degenerate, repeating a vertex, a
-    /// triangle in three of them, a non-finite vertex), as [`incise_fem::tet::TetMesh::new`]
+    /// triangle in three of them, a non-finite vertex), as [`incise_mesh::TetMesh::new`]
     /// reports them.
     #[error("{file}: {}{source}", located(.at.as_deref()))]
     Mesh {
@@ -124,14 +124,6 @@ pub enum IoError {
         at: Option<String>,
         /// Why the mesh was refused; its tetrahedron index counts the file's tetrahedra only.
         source: TetMeshError,
-    },
-    /// A scene file that is not a valid `SceneConfig` (the message names the line and key).
-    #[error("{source}")]
-    Scene {
-        /// The scene file.
-        file: String,
-        /// Why it was refused.
-        source: incise_sim::SceneError,
     },
 }
 
@@ -148,7 +140,6 @@ impl IoError {
             | Self::BadLabel { file, .. }
             | Self::BadSpacing { file, .. }
             | Self::Volume { file, .. }
-            | Self::Scene { file, .. }
             | Self::Syntax { file, .. }
             | Self::Mesh { file, .. }
             | Self::UnknownFormat { file } => file,

@@ -14,9 +14,9 @@ use crate::{
     decode_gmsh, decode_inr, decode_nifti, decode_volume, decode_vtk_legacy, decode_vtu,
     encode_gmsh22, encode_inr, encode_nifti, encode_vtk_legacy, encode_vtu,
 };
-use incise_fem::tet::TetMesh;
-use incise_fem::tet::generate::cylinder;
 use incise_grid::LabelVolume;
+use incise_mesh::TetMesh;
+use incise_mesh::generate::cylinder;
 use proptest::prelude::*;
 use std::fmt::Write as _;
 

@@ -7,17 +7,19 @@
 //! file and what in it is wrong. Decoders never panic and never allocate more than the header says
 //! the data needs: a header announcing more voxels than the file holds is reported as truncated
 //! before the label vector is allocated, and gzip streams are inflated only as far as the header
-//! asks.
-//! Gzip is recognised by its magic bytes, whatever the file is called. Scene files (TOML) are
-//! read with the volume they name ([`read_scene`]). Mesh readers name the line of every error and
-//! let vectors grow only with the data actually read, whatever counts a header announces.
+//! asks. Gzip is recognised by its magic bytes, whatever the file is called. Mesh readers name
+//! the line of every error and let vectors grow only with the data actually read, whatever counts
+//! a header announces.
+//!
+//! This crate knows geometry (`incise_grid`'s volumes, `incise_mesh`'s tetrahedra), not
+//! mechanics: scene files, which name a volume and configure a simulation, are read by
+//! `incise_scene`.
 
 mod error;
 mod gzip;
 mod inr;
 mod nifti;
 mod samples;
-mod scene;
 mod tet_mesh;
 
 #[cfg(test)]
@@ -26,7 +28,6 @@ mod fuzz;
 pub use error::IoError;
 pub use inr::{decode_inr, encode_inr, read_inr, write_inr};
 pub use nifti::{decode_nifti, encode_nifti, read_nifti, write_nifti};
-pub use scene::read_scene;
 pub use tet_mesh::{
     decode_gmsh, decode_vtk_legacy, decode_vtu, encode_gmsh22, encode_vtk_legacy, encode_vtu,
     read_tet_mesh,

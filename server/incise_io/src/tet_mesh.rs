@@ -1,5 +1,5 @@
 //! Tetrahedral meshes: Gmsh MSH 2.2 and 4.1 (`.msh`), legacy VTK (`.vtk`) and VTK XML
-//! unstructured grids (`.vtu`), all ASCII, read into an [`incise_fem::tet::TetMesh`].
+//! unstructured grids (`.vtu`), all ASCII, read into an [`incise_mesh::TetMesh`].
 //!
 //! Only 4-node tetrahedra are kept (Gmsh element type 4, VTK cell type 10); points, lines,
 //! triangles and every other element are skipped. Every node of the file becomes a vertex, in
@@ -23,8 +23,8 @@
 //! `appended` VTK XML arrays) are refused with a message saying to save as ASCII.
 
 use crate::error::IoError;
-use incise_fem::tet::TetMesh;
-use incise_fem::tet::mesh::{TetMeshError, signed_volume};
+use incise_mesh::TetMesh;
+use incise_mesh::{TetMeshError, signed_volume};
 use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -1733,7 +1733,7 @@ pub fn encode_vtu(mesh: &TetMesh) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use incise_fem::tet::generate::cylinder;
+    use incise_mesh::generate::cylinder;
 
     /// Five vertices and two tetrahedra sharing the triangle (1, 0, 0), (0, 1, 0), (0, 0, 1);
     /// the files below list the second one inverted.

@@ -12,8 +12,8 @@
 use crate::SceneConfig;
 use crate::config::AutoLevel;
 use crate::simulation::{fixed_nodes, patch_loads};
-use incise_fem::integrate::static_solve_with;
-use incise_fem::{Formulation, HexForceField, HexModel};
+use incise_fem::ode::static_solve_with;
+use incise_fem::{Executor, Formulation, HexForceField, HexModel};
 use incise_grid::{BranchedGrid, LabelVolume, MaterialTable};
 
 /// The reference level is the finest with at most this many unknowns (a sparse Cholesky solve
@@ -56,6 +56,7 @@ pub fn calibrate(
     volume: &LabelVolume,
     table: &MaterialTable,
     auto: AutoLevel,
+    exec: &Executor,
 ) -> Result<Calibration, String> {
     let mut solved: Vec<(u32, usize, usize, [f64; 3])> = Vec::new();
     for level in (0..=auto.max_level).rev() {
@@ -68,7 +69,7 @@ pub fn calibrate(
             level,
             model.elements.len(),
             model.dof_count(),
-            centre_shift(config, &grid, &model)?,
+            centre_shift(config, &grid, &model, exec)?,
         ));
     }
     let Some(&(reference_level, _, _, reference)) = solved.last() else {
@@ -101,6 +102,7 @@ fn centre_shift(
     config: &SceneConfig,
     grid: &BranchedGrid,
     model: &HexModel,
+    exec: &Executor,
 ) -> Result<[f64; 3], String> {
     let fixed = fixed_nodes(config, grid, model);
     if fixed.count() == 0 {
@@ -110,7 +112,7 @@ fn centre_shift(
         );
     }
     let loads = patch_loads(config, model)?;
-    let mut ff = HexForceField::new(model, Formulation::Linear);
+    let mut ff = HexForceField::new(model, Formulation::Linear).with_executor(exec.clone());
     let mut x = model.rest.clone();
     let report = static_solve_with(model, &mut ff, &fixed, &loads, &mut x, 1e-8, 4, true);
     if !report.converged {

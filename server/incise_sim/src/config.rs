@@ -81,7 +81,7 @@ pub enum ModelKind {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TensorMassSpec {
     /// `model.elasticity`: `"svk"` (default) or `"linear"`.
-    pub elasticity: incise_fem::tet::Elasticity,
+    pub elasticity: incise_fem::forcefield::tet::Elasticity,
     /// `model.incompressibility`: the penalty strength κ (Pa), none by default.
     pub incompressibility: Option<f64>,
     /// `model.adaptive_threshold`: displacement (m) above which a vertex is non-linear (paper 2
@@ -187,10 +187,10 @@ pub struct SceneConfig {
     /// CG relative tolerance.
     pub cg_tolerance: f64,
     /// Linear solver of the implicit integrator.
-    pub solver: incise_fem::integrate::LinearSolver,
+    pub solver: incise_fem::ode::LinearSolver,
     /// Mass matrix of the implicit integrator (`integrator.mass`: `"lumped"`, the default, or
     /// `"consistent"`).
-    pub mass: incise_fem::integrate::MassMatrix,
+    pub mass: incise_fem::ode::MassMatrix,
     /// Rayleigh damping α (1/s).
     pub rayleigh_alpha: f64,
     /// Rayleigh damping β (s).
@@ -347,8 +347,8 @@ impl Checker<'_> {
             };
         }
         let elasticity = match m.elasticity.as_ref().map(|e| (e.span(), e.get_ref().as_str())) {
-            None | Some((_, "svk")) => incise_fem::tet::Elasticity::StVenantKirchhoff,
-            Some((_, "linear")) => incise_fem::tet::Elasticity::Linear,
+            None | Some((_, "svk")) => incise_fem::forcefield::tet::Elasticity::StVenantKirchhoff,
+            Some((_, "linear")) => incise_fem::forcefield::tet::Elasticity::Linear,
             Some((span, other)) => {
                 return Err(self.invalid(
                     span,
@@ -835,11 +835,11 @@ impl SceneConfig {
             ));
         }
         let mass = match &i.mass {
-            None => incise_fem::integrate::MassMatrix::Lumped,
+            None => incise_fem::ode::MassMatrix::Lumped,
             Some(m) => {
                 let kind = match m.get_ref().as_str() {
-                    "lumped" => incise_fem::integrate::MassMatrix::Lumped,
-                    "consistent" => incise_fem::integrate::MassMatrix::Consistent,
+                    "lumped" => incise_fem::ode::MassMatrix::Lumped,
+                    "consistent" => incise_fem::ode::MassMatrix::Consistent,
                     other => {
                         return Err(c.invalid(
                             m.span(),
@@ -848,7 +848,7 @@ impl SceneConfig {
                         ));
                     }
                 };
-                if kind == incise_fem::integrate::MassMatrix::Consistent
+                if kind == incise_fem::ode::MassMatrix::Consistent
                     && integrator != IntegratorKind::ImplicitEuler
                 {
                     return Err(c.invalid(
@@ -883,20 +883,20 @@ impl SceneConfig {
             None => 1e-6,
         };
         let solver = match &i.solver {
-            None => incise_fem::integrate::LinearSolver::JacobiCg,
+            None => incise_fem::ode::LinearSolver::JacobiCg,
             Some(sv) => match sv.get_ref().as_str() {
-                "jacobi-cg" => incise_fem::integrate::LinearSolver::JacobiCg,
+                "jacobi-cg" => incise_fem::ode::LinearSolver::JacobiCg,
                 "cholesky-cg" => {
-                    incise_fem::integrate::LinearSolver::CholeskyCg { refresh_iterations: 8 }
+                    incise_fem::ode::LinearSolver::CholeskyCg { refresh_iterations: 8 }
                 }
-                "cholesky" => incise_fem::integrate::LinearSolver::Cholesky,
+                "cholesky" => incise_fem::ode::LinearSolver::Cholesky,
                 other => {
                     return Err(c.invalid(sv.span(), "integrator.solver", format!("is \"{other}\"; expected \"jacobi-cg\", \"cholesky-cg\" or \"cholesky\"")));
                 }
             },
         };
         if integrator == IntegratorKind::ImplicitEuler
-            && solver == incise_fem::integrate::LinearSolver::Cholesky
+            && solver == incise_fem::ode::LinearSolver::Cholesky
             && let Some(t) = &i.cg_tolerance
         {
             return Err(c.invalid(

@@ -7,19 +7,19 @@ use crate::calibration::{Calibration, calibrate};
 use crate::config::{
     FixedSpec, IntegratorKind, ModelKind, SceneConfig, SceneError, TensorMassSpec, VolumeSpec,
 };
-use incise_fem::cg::CgSettings;
-use incise_fem::integrate::{
-    BackwardEuler, Loads, Rayleigh, State, explicit_step, stable_dt, static_solve_with,
-};
-use incise_fem::tet::element::Fibre;
-use incise_fem::tet::explicit::CentralDifference;
-use incise_fem::tet::incompressible::Incompressibility;
-use incise_fem::tet::{Lame, TensorMassForceField, TetMaterial, TetMesh, TetModel, TetTopology};
-use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
+use incise_fem::forcefield::tet::element::Fibre;
+use incise_fem::forcefield::tet::incompressible::Incompressibility;
+use incise_fem::forcefield::tet::{Lame, TensorMassForceField, TetMaterial, TetModel};
+use incise_fem::linsolve::cg::CgSettings;
+use incise_fem::model::{Loads, State};
+use incise_fem::ode::central_difference::CentralDifference;
+use incise_fem::ode::{BackwardEuler, Rayleigh, explicit_step, stable_dt, static_solve_with};
+use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::{
     BranchedGrid, EditError, GridChanges, GridEdit, LabelFilter, LabelVolume, MaterialTable,
 };
 use incise_math::Vec3;
+use incise_mesh::{TetMesh, TetTopology};
 use std::time::Instant;
 
 /// Per-step counters (timings are measurements, not part of the deterministic state).
@@ -38,7 +38,7 @@ pub struct StageCounters {
     /// Linear-solver iterations (CG) in the step.
     pub solver_iterations: usize,
     /// Final residual of the step's solve, relative to the larger of its right-hand side and
-    /// `h‖f_ext‖` (see `incise_fem::cg::solve_against`); a static step's, relative to the load.
+    /// `h‖f_ext‖` (see `incise_fem::linsolve::cg::solve_against`); a static step's, relative to the load.
     pub solver_residual: f64,
     /// Explicit hexahedral scenes: explicit steps taken for this frame; more than 1 once a cut
     /// has lowered the mesh's stable step below the scene's `dt`. Zero for other integrators.
@@ -300,8 +300,22 @@ fn spread_patches(config: &SceneConfig, rest: &[Vec3]) -> (Vec<Vec3>, Option<usi
 
 impl Simulation {
     /// Builds the scene on `volume` (from [`SceneConfig::procedural_volume`] or a file). Only what
-    /// the scene uses is built: the grid at its level, the model, the chosen integrator.
+    /// the scene uses is built: the grid at its level, the model, the chosen integrator. It runs
+    /// on an executor of its own with the default settings, which the environment variables
+    /// `INCISE_THREADS` and `INCISE_LINGER_US` may override ([`Executor::configured`]).
     pub fn new(config: &SceneConfig, volume: &LabelVolume, file: &str) -> Result<Self, SceneError> {
+        Self::with_executor(config, volume, file, &Executor::configured(None, None))
+    }
+
+    /// [`Self::new`] on the given executor: every element loop and solve of this simulation runs
+    /// on its threads, and nothing else is shared with another simulation unless it is given a
+    /// clone of the same executor.
+    pub fn with_executor(
+        config: &SceneConfig,
+        volume: &LabelVolume,
+        file: &str,
+        exec: &Executor,
+    ) -> Result<Self, SceneError> {
         let build = |message: String| SceneError::Build { file: file.to_owned(), message };
         let volume = match &config.volume {
             VolumeSpec::File { stride, labels, .. } => {
@@ -340,7 +354,7 @@ impl Simulation {
         let mut config = config.clone();
         let calibration = match config.auto_level {
             Some(auto) => {
-                let c = calibrate(&config, &volume, &table, auto)
+                let c = calibrate(&config, &volume, &table, auto, exec)
                     .map_err(|e| build(format!("model.kind = \"auto\": {e}")))?;
                 config.level = c.chosen;
                 Some(c)
@@ -349,7 +363,8 @@ impl Simulation {
         };
         let config = &config;
         if let (ModelKind::TensorMass, Some(spec)) = (config.model, config.tensor_mass) {
-            let (body, fixed) = tet_body(config, &spec, &volume, &table).map_err(build)?;
+            let (body, fixed) =
+                tet_body(config, &spec, &volume, &table, exec.clone()).map_err(build)?;
             let state =
                 State { x: body.model.rest.clone(), v: vec![[0.0; 3]; body.model.vertex_count()] };
             return Ok(Self {
@@ -368,7 +383,7 @@ impl Simulation {
             ModelKind::Linear => Formulation::Linear,
             ModelKind::Corotational | ModelKind::TensorMass => Formulation::Corotational,
         };
-        let force_field = HexForceField::new(&model, formulation);
+        let force_field = HexForceField::new(&model, formulation).with_executor(exec.clone());
         if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l))
             .or_else(|| empty_region_hold(config, &model.rest, grid.element_size()))
         {
@@ -408,7 +423,7 @@ impl Simulation {
             }
             IntegratorKind::Static => Integrator::Static {
                 tolerance: config.cg_tolerance,
-                cholesky: config.solver != incise_fem::integrate::LinearSolver::JacobiCg,
+                cholesky: config.solver != incise_fem::ode::LinearSolver::JacobiCg,
             },
         };
         let state = State::at_rest(&model);
@@ -452,7 +467,9 @@ impl Simulation {
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
             Body::Tet(tet) => {
-                if tet.force_field.elasticity() == incise_fem::tet::Elasticity::StVenantKirchhoff {
+                if tet.force_field.elasticity()
+                    == incise_fem::forcefield::tet::Elasticity::StVenantKirchhoff
+                {
                     counters.nonlinear_vertices =
                         tet.force_field.update_adaptive(&tet.model, &tet.topology, &self.state.x);
                 }
@@ -711,8 +728,9 @@ fn tet_body(
     spec: &TensorMassSpec,
     volume: &LabelVolume,
     table: &MaterialTable,
+    exec: Executor,
 ) -> Result<(TetBody, FixedNodes), String> {
-    let (mesh, cells) = incise_fem::tet::generate::from_volume_with_cells(volume, config.level)
+    let (mesh, cells) = incise_mesh::generate::from_volume_with_cells(volume, config.level)
         .map_err(|e| format!("tetrahedralising the volume at level {}: {e}", config.level))?;
     let material = |region: u32| -> TetMaterial {
         let m = u16::try_from(region)
@@ -731,7 +749,8 @@ fn tet_body(
     };
     let model = TetModel::new(&mesh, material);
     let topology = TetTopology::new(&mesh);
-    let mut force_field = TensorMassForceField::new(&model, &topology, spec.elasticity);
+    let mut force_field =
+        TensorMassForceField::new(&model, &topology, spec.elasticity).with_executor(exec);
     if let Some(threshold) = spec.adaptive_threshold {
         force_field.enable_adaptive(&model, threshold, 0.2);
     }

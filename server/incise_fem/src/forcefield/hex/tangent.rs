@@ -19,9 +19,8 @@
 //! (the corotational force is not the gradient of an energy), so the Newton step that uses it
 //! needs a nonsymmetric solver ([`crate::bicgstab`]).
 
-use crate::hex_force::{Formulation, HexForceField};
+use crate::forcefield::hex::{Formulation, HexForceField};
 use crate::model::HexModel;
-use crate::parallel::{map_elements, update_elements};
 use incise_math::Vec3;
 use incise_math::mat3::{Mat3, cross, mul_transpose_vec, mul_vec};
 
@@ -72,7 +71,8 @@ impl RotationTangent {
         if ff.formulation() == Formulation::Linear {
             return Self::default();
         }
-        let terms = map_elements(model.elements.len(), |e| Self::term(model, ff, x, e));
+        let terms =
+            ff.executor().map_elements(model.elements.len(), |e| Self::term(model, ff, x, e));
         Self { terms, scratch: std::cell::RefCell::default() }
     }
 
@@ -149,7 +149,7 @@ impl RotationTangent {
         let mut scratch = self.scratch.borrow_mut();
         scratch.resize(self.terms.len(), [0.0; 24]);
         let terms = &self.terms;
-        update_elements(&mut scratch, |e, local| {
+        ff.executor().update_elements(&mut scratch, |e, local| {
             let Some(term) = &terms[e] else { return };
             let nodes = &model.elements[e].nodes;
             let r = ff.rotation(e);

@@ -1,4 +1,4 @@
-//! The implicit step's block-Jacobi CG (the same iteration as [`crate::cg::solve`]) run by a
+//! The implicit step's block-Jacobi CG (the same iteration as [`crate::linsolve::cg::solve`]) run by a
 //! [`crate::team`] of two threads in lockstep, for the lumped-mass system `(a·M + b·K) x = rhs`.
 //!
 //! The nodes and the elements are each cut into two fixed parts. The first element pass forms the
@@ -16,11 +16,11 @@
 //! added in part order. Nothing depends on which thread did a part, so one thread and two give the
 //! same bits.
 
-use crate::cg::{CgReport, CgSettings, dot};
-use crate::constraints::FixedNodes;
-use crate::hex_force::HexForceField;
+use crate::constraint::FixedNodes;
+use crate::exec::team::{self, PARTS};
+use crate::forcefield::hex::HexForceField;
+use crate::linsolve::cg::{CgReport, CgSettings, dot};
 use crate::model::HexModel;
-use crate::team::{self, PARTS};
 use incise_math::Vec3;
 use incise_math::mat3::{Mat3, mul_vec};
 use std::ops::Range;
@@ -64,7 +64,7 @@ pub(crate) struct Rhs<'a> {
     pub h: f64,
     /// The stiffness term's factor, `−(β + h)`.
     pub s: f64,
-    /// CG stops at `‖r‖ ≤ tolerance · max(‖b‖, reference)` (see [`crate::cg::solve_against`]).
+    /// CG stops at `‖r‖ ≤ tolerance · max(‖b‖, reference)` (see [`crate::linsolve::cg::solve_against`]).
     pub reference: f64,
 }
 
@@ -86,7 +86,7 @@ fn sized(v: &mut Vec<Vec3>, len: usize) {
 }
 
 /// Solves the system with right-hand side `rhs` for `x`, starting from `x` (warm start); the
-/// same stopping rule and iteration as [`crate::cg::solve`].
+/// same stopping rule and iteration as [`crate::linsolve::cg::solve`].
 pub(crate) fn solve(
     sys: &System,
     rhs: &Rhs,
@@ -140,7 +140,7 @@ pub(crate) fn solve(
         spans: &spans,
     };
     let directions = &work.directions;
-    let report = team::run(model.elements.len() >= TEAM_MIN, |m| {
+    let report = team::run(sys.ff.executor(), model.elements.len() >= TEAM_MIN, |m| {
         // Rank 0 of a one-thread team does both parts with the first copy.
         let mut p = directions[m.rank()].lock().expect("no thread panicked");
         shared.iterate(m, rhs, &mut p, settings)
@@ -345,13 +345,13 @@ fn project(fixed: &FixedNodes, start: usize, v: &mut [Vec3]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cg::block_jacobi;
-    use crate::hex_force::Formulation;
+    use crate::forcefield::hex::Formulation;
+    use crate::linsolve::cg::block_jacobi;
     use incise_grid::procedural::from_fn;
     use incise_grid::{BranchedGrid, Material, MaterialTable};
 
     /// On a twisted block (every element rotated differently) the lockstep solve, forming an
-    /// implicit step's right-hand side itself, and the serial [`crate::cg::solve`] given that
+    /// implicit step's right-hand side itself, and the serial [`crate::linsolve::cg::solve`] given that
     /// right-hand side assembled reach the same solution, with the same iteration count: the
     /// same iteration, only its sums grouped by part. Tolerance: both stop at ‖r‖ ≤ 1e-10 ‖b‖, so
     /// their solutions differ by about that times the condition number (< 1e3 here).
@@ -375,7 +375,7 @@ mod tests {
         let mut ff = HexForceField::new(&model, Formulation::Corotational);
         ff.update_rotations(&model, &x);
         let (a, b) = (1.002, 1.1e-5);
-        let pre = crate::integrate::preconditioner(&model, &ff, &model.lumped_mass, a, b);
+        let pre = crate::linsolve::jacobi::preconditioner(&model, &ff, &model.lumped_mass, a, b);
         // A step's right-hand side: positions `x`, some velocities and node terms. The serial
         // solver gets it assembled as the integrator did before; the lockstep one forms it.
         let wave = |i: usize, scale: f64| -> Vec3 {
@@ -399,7 +399,14 @@ mod tests {
             ff.add_stiffness_times(&model, b, p, out);
         };
         let mut serial = vec![[0.0; 3]; model.node_count()];
-        let rs = crate::cg::solve(apply, block_jacobi(&pre), &fixed, &rhs, &mut serial, settings);
+        let rs = crate::linsolve::cg::solve(
+            apply,
+            block_jacobi(&pre),
+            &fixed,
+            &rhs,
+            &mut serial,
+            settings,
+        );
         let sys = System { model: &model, ff: &ff, fixed: &fixed, a, b, pre: &pre };
         let mut lockstep = vec![[0.0; 3]; model.node_count()];
         let step = Rhs { x: &x, v: &v, node: &node, h, s, reference: 0.0 };
@@ -432,7 +439,8 @@ mod tests {
             let mut ff = HexForceField::new(&model, Formulation::Corotational);
             ff.update_rotations(&model, &x);
             let (a, b) = (1.002, 1.1e-5);
-            let pre = crate::integrate::preconditioner(&model, &ff, &model.lumped_mass, a, b);
+            let pre =
+                crate::linsolve::jacobi::preconditioner(&model, &ff, &model.lumped_mass, a, b);
             let n = model.node_count();
             let v = vec![[1e-3, 0.0, -2e-3]; n];
             let node = vec![[0.0, 0.0, -1e-3]; n];

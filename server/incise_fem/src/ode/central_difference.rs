@@ -7,12 +7,12 @@
 //! damps.) The scheme is stable for `Δt ≤ 2/ω_max`, `ω_max² = λ_max(M⁻¹K)`; [`stable_dt`]
 //! estimates it from the rest stiffness and [`CentralDifference::new`] refuses a larger step.
 
-use super::element::TetModel;
-use super::incompressible::Incompressibility;
-use super::tensor_mass::TensorMassForceField;
-use super::topology::TetTopology;
-use crate::constraints::FixedNodes;
+use crate::constraint::FixedNodes;
+use crate::forcefield::tet::element::TetModel;
+use crate::forcefield::tet::incompressible::Incompressibility;
+use crate::forcefield::tet::tensor_mass::TensorMassForceField;
 use incise_math::Vec3;
+use incise_mesh::TetTopology;
 
 /// Power iterations for `λ_max(M⁻¹K)`.
 const POWER_ITERATIONS: usize = 100;

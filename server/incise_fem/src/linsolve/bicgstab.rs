@@ -1,9 +1,9 @@
 //! Preconditioned Bi-CGSTAB (van der Vorst 1992) for the nonsymmetric Newton systems of the
 //! corotational static solve with its full tangent ([`crate::tangent`]). Same interface and
-//! stopping rule as [`crate::cg::solve`]; dot products in node order, so deterministic.
+//! stopping rule as [`crate::linsolve::cg::solve`]; dot products in node order, so deterministic.
 
-use crate::cg::{CgReport, CgSettings, dot, free_rhs};
-use crate::constraints::FixedNodes;
+use crate::constraint::FixedNodes;
+use crate::linsolve::cg::{CgReport, CgSettings, dot, free_rhs};
 use incise_math::Vec3;
 
 /// `y = a + s · b`, node by node.
@@ -101,7 +101,7 @@ pub fn solve(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cg::block_jacobi;
+    use crate::linsolve::cg::block_jacobi;
 
     #[test]
     fn solves_a_nonsymmetric_system_on_the_free_nodes() {
@@ -130,7 +130,7 @@ mod tests {
             .collect();
         let mut b = vec![[0.0; 3]; n];
         apply(&want, &mut b);
-        let blocks: Vec<_> = (0..n).map(|i| crate::cg::invert_block(&block(i))).collect();
+        let blocks: Vec<_> = (0..n).map(|i| crate::linsolve::cg::invert_block(&block(i))).collect();
         let mut x = vec![[1.0; 3]; n];
         let settings = CgSettings { tolerance: 1e-12, max_iterations: 500 };
         let report = solve(apply, block_jacobi(&blocks), &fixed, &b, &mut x, settings);

@@ -9,13 +9,13 @@
 //!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit steps is `R K Rᵀ` per element
 //!   (static Newton adds the rotation's derivative, `crate::tangent`).
 
-use crate::kernel::{
+use crate::exec::Executor;
+use crate::forcefield::hex::kernel::{
     Local, Wide, component_major, gather, product, product_pair, scatter_add, to_global, to_local,
     vectorized,
 };
+use crate::forcefield::hex::walsh::Walsh;
 use crate::model::HexModel;
-use crate::parallel::{join_if, map_elements, update_elements, update_runs};
-use crate::walsh::Walsh;
 use incise_grid::hex8::{Mat24, corner};
 use incise_math::Vec3;
 use incise_math::lanes::{Lane, Lane4};
@@ -52,6 +52,8 @@ pub struct HexForceField {
     /// superimposed ones): the shape-function gradients there, which their rotation is taken
     /// at instead ([`material_gradient`]).
     off_centre: Vec<Option<Arc<[Vec3; 8]>>>,
+    /// The threads its element loops run on.
+    exec: Executor,
 }
 
 /// The shape-function gradients of a box of edge lengths `s` at the centre of mass of the
@@ -124,15 +126,36 @@ enum Input<'a> {
 }
 
 impl HexForceField {
-    /// A force field for `model`, all rotations at identity.
+    /// A force field for `model`, all rotations at identity, on an executor of its own (see
+    /// [`Self::with_executor`]).
     #[must_use]
     pub fn new(model: &HexModel, formulation: Formulation) -> Self {
-        Self::with_known(model, formulation, Shared::new())
+        Self::with_known(model, formulation, Shared::new(), Executor::default())
+    }
+
+    /// The same field running its loops on `exec` (the simulation's executor, shared with its
+    /// solvers).
+    #[must_use]
+    pub fn with_executor(mut self, exec: Executor) -> Self {
+        self.exec = exec;
+        self
+    }
+
+    /// The executor its loops run on; the integrators and solvers working on this field use it
+    /// too.
+    #[must_use]
+    pub fn executor(&self) -> &Executor {
+        &self.exec
     }
 
     /// [`Self::new`] reusing the permuted matrices in `known` (by the model matrix they came
     /// from) and computing only the others.
-    fn with_known(model: &HexModel, formulation: Formulation, mut known: Shared) -> Self {
+    fn with_known(
+        model: &HexModel,
+        formulation: Formulation,
+        mut known: Shared,
+        exec: Executor,
+    ) -> Self {
         let s = model.element_size;
         let centre_gradient = gradient_at([0.5; 3], s);
         // One permuted copy per shared matrix, so the pairs of the element passes still find
@@ -158,6 +181,7 @@ impl HexForceField {
             walsh,
             centre_gradient,
             off_centre,
+            exec,
         }
     }
 
@@ -191,7 +215,7 @@ impl HexForceField {
                 )
             })
             .collect();
-        let mut out = Self::with_known(new_model, self.formulation, known);
+        let mut out = Self::with_known(new_model, self.formulation, known, self.exec.clone());
         for (i, e) in new_model.elements.iter().enumerate() {
             let old = match origin(e.grid_id) {
                 Some(o) => find(o),
@@ -244,7 +268,7 @@ impl HexForceField {
         };
         // Four elements at a time on vector lanes where there are any (`nearest4`: the same
         // bits as one by one).
-        update_runs(&mut self.frames, |start, run| {
+        self.exec.update_runs(&mut self.frames, |start, run| {
             vectorized(
                 #[inline(always)]
                 |wide| {
@@ -384,7 +408,7 @@ impl HexForceField {
     /// `out += Σₑ scale · R Kₑ local(e)`: the element loop shared by every product.
     fn add_products(&self, model: &HexModel, scale: f64, input: Input, out: &mut [Vec3]) {
         with_scratch(model.elements.len(), |per_element| {
-            update_runs(per_element, |start, run| {
+            self.exec.update_runs(per_element, |start, run| {
                 vectorized(
                     #[inline(always)]
                     |wide| {
@@ -530,12 +554,12 @@ impl HexForceField {
             buffer.clear();
             buffer.resize(n, [[0.0; 3]; 3]);
         }
-        join_if(
-            count >= crate::parallel::PARALLEL_MIN,
+        self.exec.join_if(
+            count >= crate::exec::PARALLEL_MIN,
             || half(0..count / 2, out),
             || half(count / 2..count, scratch),
         );
-        update_elements(out, |node, d| {
+        self.exec.update_elements(out, |node, d| {
             let s = &scratch[node];
             for i in 0..3 {
                 for j in 0..3 {
@@ -548,7 +572,7 @@ impl HexForceField {
     /// Elastic energy `½ Σₑ uₑᵀ Kₑ uₑ` (J), with `u` in each element's rotated frame.
     #[must_use]
     pub fn energy(&self, model: &HexModel, x: &[Vec3]) -> f64 {
-        let per_element = map_elements(model.elements.len(), |e| {
+        let per_element = self.exec.map_elements(model.elements.len(), |e| {
             vectorized(
                 #[inline(always)]
                 |wide| {

@@ -18,7 +18,7 @@
 //! of `D` outside the pattern are rounding noise of the matrix itself (checked to be below 1e-12 of
 //! its largest entry, or the cell keeps the dense product).
 
-use crate::kernel::{Local, Wide};
+use crate::forcefield::hex::kernel::{Local, Wide};
 use incise_grid::hex8::Mat24;
 
 /// The bit of the Walsh index that each pair of components `(i, j)` flips: `bᵢ ⊕ bⱼ`.
@@ -204,7 +204,7 @@ mod avx {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernel::{component_major, vectorized};
+    use crate::forcefield::hex::kernel::{component_major, vectorized};
     use incise_grid::hex8::hex_stiffness;
 
     fn input(seed: f64) -> Local {

@@ -8,9 +8,9 @@
 //! - St Venant-Kirchhoff (eq. 5): `E = ½(∇U + ∇Uᵀ + ∇Uᵀ∇U)`, the same `W` with `E`. The force on
 //!   vertex `j` is `−V₀ F S αⱼ`, `F = I + ∇U`, `S = λ tr(E) I + 2μE` (second Piola-Kirchhoff).
 
-use super::mesh::{TetMesh, signed_volume};
 use incise_math::Vec3;
 use incise_math::mat3::{Mat3, det, mul_vec};
+use incise_mesh::{TetMesh, signed_volume};
 
 /// Lamé coefficients (Pa).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -2,7 +2,7 @@
 //! and implicit solvers, matrix-free, with a block-Jacobi (3×3 per node) preconditioner and fixed
 //! nodes projected out. Dot products run in node order, so results are deterministic.
 
-use crate::constraints::FixedNodes;
+use crate::constraint::FixedNodes;
 use incise_math::Vec3;
 use incise_math::mat3::{Mat3, det, mul_vec};
 

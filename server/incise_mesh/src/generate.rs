@@ -5,7 +5,7 @@
 //! corner 7, Kuhn's subdivision). All cells use the same diagonal, so two cells sharing a face split
 //! it along the same diagonal: the mesh is conforming.
 
-use super::mesh::{TetMesh, TetMeshError, signed_volume};
+use crate::mesh::{TetMesh, TetMeshError, signed_volume};
 use incise_grid::LabelVolume;
 use incise_math::Vec3;
 use std::collections::BTreeMap;

@@ -5,13 +5,13 @@
 //! Venant-Kirchhoff under compression is indefinite) and converges for every mode at the rate of
 //! the slowest, which suits the large-deformation references of paper 2's Table 1.
 
-use super::element::TetModel;
-use super::explicit::CentralDifference;
-use super::incompressible::Incompressibility;
-use super::tensor_mass::TensorMassForceField;
-use super::topology::TetTopology;
-use crate::constraints::FixedNodes;
+use crate::constraint::FixedNodes;
+use crate::forcefield::tet::element::TetModel;
+use crate::forcefield::tet::incompressible::Incompressibility;
+use crate::forcefield::tet::tensor_mass::TensorMassForceField;
+use crate::ode::CentralDifference;
 use incise_math::Vec3;
+use incise_mesh::TetTopology;
 
 /// Vertices moved to prescribed positions (they are held there, like fixed ones).
 #[derive(Clone, Debug, PartialEq)]

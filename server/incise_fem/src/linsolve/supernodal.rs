@@ -127,7 +127,12 @@ impl Supernodes {
     }
 
     /// Solves `L Lᵀ x = b` in place (`x` holds `b` on entry), with `l` the factor's values.
-    pub fn solve<T: Scalar + Send + Sync>(&self, l: &[T], x: &mut [T]) {
+    pub fn solve<T: Scalar + Send + Sync>(
+        &self,
+        exec: &crate::exec::Executor,
+        l: &[T],
+        x: &mut [T],
+    ) {
         let count = self.begin.len() - 1;
         let n = x.len();
         let Some(h) = &self.halves else {
@@ -144,7 +149,7 @@ impl Supernodes {
         // The second half's updates of the separator go to a buffer that is added after both
         // halves: the same order of sums whichever thread runs what.
         let mut buffer = vec![T::default(); separator.len()];
-        crate::parallel::join_if(
+        exec.join_if(
             parallel,
             || self.sweep(Sweep::Forward(separator), 0..h.left, l, &mut a),
             || self.sweep(Sweep::Forward(&mut buffer), h.left..h.right, l, &mut b),
@@ -157,7 +162,7 @@ impl Supernodes {
         self.sweep(Sweep::Backward(&[]), h.right..count, l, &mut top);
         // The halves only read the separator on the way back.
         let separator = &*top.own;
-        crate::parallel::join_if(
+        exec.join_if(
             parallel,
             || self.sweep(Sweep::Backward(separator), 0..h.left, l, &mut a),
             || self.sweep(Sweep::Backward(separator), h.left..h.right, l, &mut b),

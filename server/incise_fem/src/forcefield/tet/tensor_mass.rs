@@ -19,9 +19,10 @@
 //! last contributor is gone to exactly zero. The force on vertex `p` is `−∂W/∂Uₚ`.
 
 use super::element::{Elasticity, TetModel};
-use super::topology::{EDGES, TetTopology};
 use incise_math::Vec3;
 use incise_math::mat3::{Mat3, dot, mul_transpose_vec, mul_vec};
+use incise_mesh::TetTopology;
+use incise_mesh::topology::EDGES;
 use std::collections::{BTreeMap, HashMap};
 
 /// One tetrahedron's terms in canonical form (global vertex ids).
@@ -182,6 +183,8 @@ pub struct TensorMassForceField {
     quartic_pairs: Vec<[u32; 2]>,
     /// Adaptive non-linearity (paper 2 §6), when on.
     adaptive: Option<AdaptiveState>,
+    /// The threads its two term parts run on.
+    exec: crate::exec::Executor,
 }
 
 /// Adaptive non-linearity (paper 2 §6): which vertices are non-linear, and which tetrahedra
@@ -247,6 +250,13 @@ fn add3(a: &mut Mat3, b: &Mat3, sign: f64) {
 }
 
 impl TensorMassForceField {
+    /// The same field running its two term parts on `exec` (the simulation's executor).
+    #[must_use]
+    pub fn with_executor(mut self, exec: crate::exec::Executor) -> Self {
+        self.exec = exec;
+        self
+    }
+
     /// Precomputes the stiffness tensors of every live tetrahedron of `topo`.
     #[must_use]
     pub fn new(model: &TetModel, topo: &TetTopology, kind: Elasticity) -> Self {
@@ -285,6 +295,7 @@ impl TensorMassForceField {
             cubic: TermTable::build(cubic),
             quartic: TermTable::build(quartic),
             adaptive: None,
+            exec: crate::exec::Executor::default(),
         };
         let edge_of: HashMap<[u32; 2], u32> =
             topo.edges().iter().enumerate().map(|(i, &e)| (e, i as u32)).collect();
@@ -409,11 +420,7 @@ impl TensorMassForceField {
         let mut first = vec![[0.0; 3]; n];
         let mut second = vec![[0.0; 3]; n];
         let terms = self.cubic.keys.len() + self.quartic.keys.len();
-        crate::parallel::join_if(
-            terms >= PARALLEL_TERMS,
-            || work(0, &mut first),
-            || work(1, &mut second),
-        );
+        self.exec.join_if(terms >= PARALLEL_TERMS, || work(0, &mut first), || work(1, &mut second));
         for ((o, a), b) in out.iter_mut().zip(&first).zip(&second) {
             for k in 0..3 {
                 o[k] += a[k] + b[k];

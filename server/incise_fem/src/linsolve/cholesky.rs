@@ -11,11 +11,11 @@
 //! bytes is nearly half the time. CG itself, its residual and its stopping test stay in `f64`, so
 //! the solution meets the same tolerance; only the preconditioner is less exact.
 
-use crate::constraints::FixedNodes;
-use crate::hex_force::HexForceField;
+use crate::constraint::FixedNodes;
+use crate::forcefield::hex::HexForceField;
+use crate::forcefield::hex::tangent::RotationTangent;
+use crate::linsolve::supernodal::{Scalar, Supernodes};
 use crate::model::HexModel;
-use crate::supernodal::{Scalar, Supernodes};
-use crate::tangent::RotationTangent;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{
@@ -60,6 +60,8 @@ pub struct SystemFactor {
     factor: Factor,
     /// The supernode layout for our own substitutions (`None` for a simplicial factor).
     supernodes: Option<Supernodes>,
+    /// The threads the substitutions' two halves run on.
+    exec: crate::exec::Executor,
 }
 
 /// Why a factorisation failed.
@@ -111,7 +113,7 @@ impl SystemFactor {
             }
         }
         let positions: Vec<Vec3> = free_nodes.iter().map(|&i| model.rest[i]).collect();
-        let dissection = crate::ordering::nested_dissection(&positions, &neighbours);
+        let dissection = crate::linsolve::ordering::nested_dissection(&positions, &neighbours);
         let mut free = vec![NONE; n];
         for (k, &l) in dissection.order.iter().enumerate() {
             free[free_nodes[l as usize]] = k as u32;
@@ -204,7 +206,15 @@ impl SystemFactor {
             diagonal,
             values: vec![0.0; nnz],
             factor: Factor::None,
+            exec: crate::exec::Executor::default(),
         })
+    }
+
+    /// The same factor running its substitutions on `exec` (the simulation's executor).
+    #[must_use]
+    pub fn with_executor(mut self, exec: crate::exec::Executor) -> Self {
+        self.exec = exec;
+        self
     }
 
     /// Factorises `a·M + b·K(R)` with the lumped mass and the force field's current rotations.
@@ -373,7 +383,7 @@ impl SystemFactor {
             }
         }
         if let Some(supernodes) = &self.supernodes {
-            supernodes.solve(l_values, &mut rhs);
+            supernodes.solve(&self.exec, l_values, &mut rhs);
         } else {
             let mut buffer = MemBuffer::new(self.symbolic.solve_in_place_scratch::<T>(1, Par::Seq));
             LltRef::new(&self.symbolic, l_values).solve_in_place_with_conj(

@@ -20,6 +20,8 @@ const MAX_VALUES: usize = 3;
 /// The shared state of a team.
 struct Team {
     ranks: usize,
+    /// How a member waits at a barrier: spinning first, or yielding from the start.
+    idle: crate::exec::Idle,
     /// Set when a member panicked: its partner would otherwise wait at the next barrier forever.
     poisoned: std::sync::atomic::AtomicBool,
     arrived: AtomicUsize,
@@ -62,7 +64,7 @@ impl Member<'_> {
             team.generation.store(generation + 1, Ordering::Release);
             return;
         }
-        crate::parallel::wait_until(|| {
+        crate::exec::executor::wait_until(team.idle, || {
             assert!(
                 !team.poisoned.load(Ordering::Relaxed),
                 "the other thread of the team panicked"
@@ -102,13 +104,18 @@ impl Drop for PoisonOnPanic<'_> {
     }
 }
 
-/// Runs `body` on a team of two threads (the caller and one pool thread) when `parallel` and two
-/// threads are allowed, otherwise on the caller alone, and returns rank 0's result. A panic in
-/// either thread ends both (the other panics at its next barrier) and reaches the caller.
-pub(crate) fn run<R: Send>(parallel: bool, body: impl Fn(&Member) -> R + Sync) -> R {
-    let two = parallel && crate::parallel::threads() > 1 && !crate::parallel::in_pool();
+/// Runs `body` on a team of two threads (the caller and one of `exec`'s workers) when `parallel`
+/// and `exec` has two threads, otherwise on the caller alone, and returns rank 0's result. A panic
+/// in either thread ends both (the other panics at its next barrier) and reaches the caller.
+pub(crate) fn run<R: Send>(
+    exec: &crate::exec::Executor,
+    parallel: bool,
+    body: impl Fn(&Member) -> R + Sync,
+) -> R {
+    let two = parallel && exec.threads() > 1 && !exec.in_pool();
     let team = Team {
         ranks: if two { 2 } else { 1 },
+        idle: exec.idle(),
         poisoned: std::sync::atomic::AtomicBool::new(false),
         arrived: AtomicUsize::new(0),
         generation: AtomicUsize::new(0),
@@ -124,15 +131,15 @@ pub(crate) fn run<R: Send>(parallel: bool, body: impl Fn(&Member) -> R + Sync) -
         return body(&member(0));
     }
     let (body, member) = (&body, &member);
-    let pending = crate::parallel::Pending::new();
-    crate::parallel::pool().in_place_scope(|s| {
-        pending.spawn(s, move || {
+    let pending = crate::exec::executor::Pending::new();
+    exec.scope(|s| {
+        exec.spawn_counted(&pending, s, move || {
             let _poison = PoisonOnPanic(member(1).team);
             body(&member(1));
         });
         let _poison = PoisonOnPanic(&team);
         let result = body(&member(0));
-        pending.wait();
+        pending.wait(exec);
         result
     })
 }
@@ -152,8 +159,9 @@ mod tests {
     fn sums_are_the_same_on_one_thread_or_two() {
         let values: Vec<f64> = (0..1000).map(|i| (f64::from(i) * 0.37).sin() * 1e3).collect();
         let parts = split(0..values.len(), 4);
+        let exec = crate::exec::Executor::default();
         let total = |parallel| {
-            run(parallel, |m| {
+            run(&exec, parallel, |m| {
                 let mut acc = 0.0;
                 for round in 0..50 {
                     let [s] = m.sum(|p| [values[parts[p].clone()].iter().sum::<f64>() + acc]);
@@ -167,16 +175,17 @@ mod tests {
 
     #[test]
     fn a_panic_in_one_thread_ends_the_team() {
-        let result = std::panic::catch_unwind(|| {
-            run(true, |m| {
-                assert!(m.rank == 0 || crate::parallel::threads() == 1, "rank 1 fails");
+        let exec = crate::exec::Executor::new(2, crate::exec::Idle::DEFAULT_SPIN);
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            run(&exec, true, |m| {
+                assert!(m.rank == 0, "rank 1 fails");
                 for _ in 0..3 {
                     m.barrier();
                 }
             });
-        });
-        // With two threads rank 1 panics and rank 0 leaves its barrier; with one nothing fails.
-        assert_eq!(result.is_err(), crate::parallel::threads() > 1);
+        }));
+        // Rank 1 panics and rank 0 leaves its barrier.
+        assert!(result.is_err());
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! edges, triangles, and tetrahedra, with all the necessary neighbours"), and the boundary surface,
 //! kept current as tetrahedra are removed.
 
-use super::mesh::TetMesh;
+use crate::mesh::TetMesh;
 use std::collections::HashMap;
 
 /// The faces of tetrahedron `[v0, v1, v2, v3]`, face `f` opposite vertex `f`, each ordered so that
@@ -438,7 +438,7 @@ pub fn non_manifold_edges(surface: &[[u32; 3]]) -> Vec<[u32; 2]> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tet::generate::cylinder;
+    use crate::generate::cylinder;
 
     #[test]
     fn counts_and_boundary_of_a_cylinder() {

@@ -1,0 +1,42 @@
+//! Block-Jacobi preconditioning: the inverse 3×3 diagonal blocks of `a·M + b·K`, per node.
+
+use crate::forcefield::hex::HexForceField;
+use crate::linsolve::cg::invert_block;
+use crate::model::HexModel;
+use incise_math::mat3::Mat3;
+
+/// Block-Jacobi preconditioner of `a·M + b·K`.
+pub(crate) fn preconditioner(
+    model: &HexModel,
+    ff: &HexForceField,
+    mass: &[f64],
+    a: f64,
+    b: f64,
+) -> Vec<Mat3> {
+    let mut blocks = Vec::new();
+    preconditioner_into(model, ff, mass, (a, b), &mut blocks, &mut Vec::new());
+    blocks
+}
+
+/// [`preconditioner`] into `blocks`, with `scratch` for the element sums (buffers kept between
+/// rebuilds).
+pub(crate) fn preconditioner_into(
+    model: &HexModel,
+    ff: &HexForceField,
+    mass: &[f64],
+    (a, b): (f64, f64),
+    blocks: &mut Vec<Mat3>,
+    scratch: &mut Vec<Mat3>,
+) {
+    ff.diagonal_blocks_into(model, blocks, scratch);
+    ff.executor().update_elements(blocks, |n, k| {
+        let mut blk = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                blk[i][j] = b * k[i][j];
+            }
+            blk[i][i] += a * mass[n];
+        }
+        *k = invert_block(&blk);
+    });
+}

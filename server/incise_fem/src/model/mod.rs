@@ -1,0 +1,10 @@
+//! The mechanical model: the hexahedral elements of a grid's top level with their condensed
+//! matrices and masses ([`HexModel`]), the external loads ([`Loads`]) and the state ([`State`]).
+
+mod hex_model;
+mod loads;
+mod state;
+
+pub use hex_model::{HexElement, HexModel};
+pub use loads::Loads;
+pub use state::State;

@@ -1,6 +1,7 @@
 //! `incise-bench`: the reports that measure incise. Each prints a table a person can read and,
 //! with `--json`, ends with one line holding one JSON object for scripts.
 
+mod coexist;
 mod grid_report;
 mod peers;
 mod plot;
@@ -32,6 +33,10 @@ enum Command {
     /// St Venant-Kirchhoff and SVK + incompressibility tensor-mass models, and corotational
     /// hexahedra), explicit speed per model, and adaptive non-linearity against full SVK.
     TensorMass(tensor_mass::TensorMassArgs),
+    /// A 1 kHz probe thread beside the stepping physics, for physics on 1 and 2 threads with
+    /// spinning and sleeping idle workers: the probe's period jitter (p50, p99, max) and the
+    /// physics' steps per second.
+    Coexist(coexist::CoexistArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -40,5 +45,6 @@ fn main() -> anyhow::Result<()> {
         Command::Grid(args) => grid_report::run(&args),
         Command::SpeedError(args) => speed_error::run(&args),
         Command::TensorMass(args) => tensor_mass::run(&args),
+        Command::Coexist(args) => coexist::run(&args),
     }
 }

@@ -224,3 +224,35 @@ fn speed_error_compares_measured_peers_at_equal_error() {
     assert!(err.contains("mujoco.txt") && err.contains("no rows"), "names file and problem: {err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn coexist_json_has_a_row_per_setting_with_the_contract_keys() {
+    let out =
+        bench().args(["coexist", "--scene", "b1", "--seconds", "0.2", "--json"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    let rows = j["rows"].as_array().expect("rows");
+    let settings: Vec<(u64, bool)> = rows
+        .iter()
+        .map(|r| {
+            for key in ["physics_threads", "spin", "steps_per_s", "jitter_us_p99", "jitter_us_max"]
+            {
+                assert!(r.get(key).is_some(), "missing key {key} in {r}");
+            }
+            (r["physics_threads"].as_u64().unwrap(), r["spin"].as_bool().unwrap())
+        })
+        .collect();
+    assert_eq!(settings, [(0, false), (1, false), (1, true), (2, false), (2, true)]);
+    for r in &rows[1..] {
+        assert!(r["steps_per_s"].as_f64().unwrap() > 0.0, "the physics stepped: {r}");
+        assert!(r["jitter_us_p99"].as_f64().unwrap() >= 0.0);
+    }
+}
+
+#[test]
+fn coexist_names_a_missing_scene() {
+    let out = bench().args(["coexist", "--scene", "no_such_scene"]).output().unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("no_such_scene"), "{stderr}");
+}

@@ -700,13 +700,19 @@ impl<'a> MshBinary<'a> {
 
     /// Checks that `count` items of `each` bytes fit in the rest of the file before any is read,
     /// so that no count drives a loop or an allocation past the data.
-    fn need(&self, count: u64, each: u64, what: impl FnOnce() -> String) -> Result<(), IoError> {
+    fn need(
+        &self,
+        count: u64,
+        each: u64,
+        noun: &str,
+        what: impl FnOnce() -> String,
+    ) -> Result<(), IoError> {
         let total = count.checked_mul(each);
         if total.is_none_or(|t| t > self.remaining() as u64) {
             return Err(self.error_at(
                 self.pos,
                 format!(
-                    "{} announces {} of {each} bytes each, the file holds {} more bytes",
+                    "{} announces {} {noun} of {each} bytes each, the file holds {} more bytes",
                     what(),
                     grouped(count),
                     grouped(self.remaining() as u64)
@@ -716,11 +722,14 @@ impl<'a> MshBinary<'a> {
         Ok(())
     }
 
-    /// A count read as a `size_t`, checked to fit `each` bytes per item in the rest of the file.
-    fn count(&mut self, each: u64, what: &str) -> Result<u64, IoError> {
+    /// A count of `noun`s read as a `size_t`, checked to fit `each` bytes per item in the rest
+    /// of the file.
+    fn count(&mut self, each: u64, noun: &str, what: &str) -> Result<u64, IoError> {
         let at = self.pos;
         let count = self.size(what)?;
-        self.need(count, each, || format!("{what} (at byte {})", grouped(at as u64)))?;
+        self.need(count, each, noun, || {
+            format!("{what} (counted at byte {})", grouped(at as u64))
+        })?;
         Ok(count)
     }
 
@@ -739,14 +748,15 @@ impl<'a> MshBinary<'a> {
     fn end(&mut self, section: &str) -> Result<(), IoError> {
         match self.header_line() {
             Some((_, text)) if text.strip_prefix("$End") == Some(section) => Ok(()),
-            Some((at, text)) => Err(self.error_at(
-                at,
-                format!(
-                    "expected $End{section}, found {} (the counts of ${section} disagree with \
-                     its data)",
-                    shown(&text)
-                ),
-            )),
+            Some((at, text)) => {
+                let hint = if section == "MeshFormat" {
+                    ""
+                } else {
+                    " (the counts of the section disagree with its data)"
+                };
+                Err(self
+                    .error_at(at, format!("expected $End{section}, found {}{hint}", shown(&text))))
+            }
             None => Err(self
                 .error_at(self.pos, format!("the file ends inside ${section} (no $End{section})"))),
         }
@@ -775,7 +785,7 @@ impl<'a> MshBinary<'a> {
             *count = self.size(&format!("the number of {what} of $Entities"))?;
         }
         let total = counts.iter().try_fold(0u64, |sum, &c| sum.checked_add(c)).unwrap_or(u64::MAX);
-        self.need(total, smallest, || "$Entities".to_owned())?;
+        self.need(total, smallest, "entities", || "$Entities".to_owned())?;
         for (dim, (&count, what)) in
             counts.iter().zip(["point", "curve", "surface", "volume"]).enumerate()
         {
@@ -784,7 +794,7 @@ impl<'a> MshBinary<'a> {
                 let tag = self.int(&what)?;
                 let box_bytes = if dim == 0 { 24 } else { 48 };
                 self.take(box_bytes, &what)?;
-                let physicals = self.count(4, &format!("the physical tag count of {what}"))?;
+                let physicals = self.count(4, "physical tags", &what)?;
                 for p in 0..physicals {
                     let physical = self.int(&what)?;
                     if dim == 3 && p == 0 {
@@ -792,8 +802,7 @@ impl<'a> MshBinary<'a> {
                     }
                 }
                 if dim > 0 {
-                    let bounding =
-                        self.count(4, &format!("the bounding entity count of {what}"))?;
+                    let bounding = self.count(4, "bounding entities", &what)?;
                     // `need` has checked the bytes are there.
                     self.take(bounding as usize * 4, &what)?;
                 }
@@ -806,7 +815,7 @@ impl<'a> MshBinary<'a> {
     fn nodes(&mut self, nodes: &mut GmshNodes) -> Result<(), IoError> {
         let size_t = self.size_t as u64;
         let header = self.pos;
-        let blocks = self.count(12 + size_t, "the node block count of $Nodes")?;
+        let blocks = self.count(12 + size_t, "node blocks", "$Nodes")?;
         let total = self.size("the node count of $Nodes")?;
         self.take(2 * self.size_t, "the node tag range of $Nodes")?;
         let before = nodes.coords.len();
@@ -830,7 +839,7 @@ impl<'a> MshBinary<'a> {
                 }
             };
             let per_node = size_t + 8 * (3 + extra);
-            let count = self.count(per_node, &format!("node block {b} of {blocks}"))?;
+            let count = self.count(per_node, "nodes", &format!("node block {b} of {blocks}"))?;
             let mut tags = Vec::new();
             for k in 1..=count {
                 tags.push(self.size(&format!("the tag of node {k} of {count} in block {b}"))?);
@@ -857,7 +866,7 @@ impl<'a> MshBinary<'a> {
     fn elements(&mut self, tets: &mut Vec<GmshTet>) -> Result<(), IoError> {
         let size_t = self.size_t as u64;
         let header = self.pos;
-        let blocks = self.count(12 + size_t, "the element block count of $Elements")?;
+        let blocks = self.count(12 + size_t, "element blocks", "$Elements")?;
         let total = self.size("the element count of $Elements")?;
         self.take(2 * self.size_t, "the element tag range of $Elements")?;
         let mut read = 0u64;
@@ -878,6 +887,7 @@ impl<'a> MshBinary<'a> {
             };
             let count = self.count(
                 size_t * (1 + per_element),
+                "elements",
                 &format!("element block {b} of {blocks} (type {kind})"),
             )?;
             for k in 1..=count {
@@ -909,6 +919,27 @@ impl<'a> MshBinary<'a> {
 /// block per run of consecutive tetrahedra in the same region, so that the mesh reads back in
 /// its own order. Fails for a region beyond `i32::MAX`, which Gmsh's `int` tags cannot hold.
 pub fn encode_gmsh41_binary(mesh: &TetMesh) -> Result<Vec<u8>, IoError> {
+    encode_gmsh41_binary_in(mesh, false)
+}
+
+/// Binary MSH being written, in one byte order.
+struct MshOut {
+    bytes: Vec<u8>,
+    big: bool,
+}
+
+impl MshOut {
+    /// A value given as its little-endian bytes.
+    fn put<const N: usize>(&mut self, mut le: [u8; N]) {
+        if self.big {
+            le.reverse();
+        }
+        self.bytes.extend(le);
+    }
+}
+
+/// [`encode_gmsh41_binary`] in either byte order.
+pub(super) fn encode_gmsh41_binary_in(mesh: &TetMesh, big: bool) -> Result<Vec<u8>, IoError> {
     let mut regions: Vec<u32> = mesh.regions().to_vec();
     regions.sort_unstable();
     regions.dedup();
@@ -919,39 +950,39 @@ pub fn encode_gmsh41_binary(mesh: &TetMesh) -> Result<Vec<u8>, IoError> {
         })
     };
     let entity = |r: u32| regions.binary_search(&r).map_or(0, |i| i as i32 + 1);
-    let mut out = b"$MeshFormat\n4.1 1 8\n".to_vec();
-    out.extend(1i32.to_le_bytes());
-    out.extend(b"\n$EndMeshFormat\n$Entities\n");
+    let mut out = MshOut { bytes: b"$MeshFormat\n4.1 1 8\n".to_vec(), big };
+    out.put(1i32.to_le_bytes());
+    out.bytes.extend(b"\n$EndMeshFormat\n$Entities\n");
     for count in [0, 0, 0, regions.len() as u64] {
-        out.extend(count.to_le_bytes());
+        out.put(count.to_le_bytes());
     }
     for &r in &regions {
-        out.extend(entity(r).to_le_bytes());
+        out.put(entity(r).to_le_bytes());
         for v in [0.0f64; 6] {
-            out.extend(v.to_le_bytes());
+            out.put(v.to_le_bytes());
         }
-        out.extend(1u64.to_le_bytes());
-        out.extend(int(r)?.to_le_bytes());
-        out.extend(0u64.to_le_bytes());
+        out.put(1u64.to_le_bytes());
+        out.put(int(r)?.to_le_bytes());
+        out.put(0u64.to_le_bytes());
     }
-    out.extend(b"\n$EndEntities\n$Nodes\n");
+    out.bytes.extend(b"\n$EndEntities\n$Nodes\n");
     let n = mesh.vertices().len() as u64;
     for v in [1, n, 1, n] {
-        out.extend(v.to_le_bytes());
+        out.put(v.to_le_bytes());
     }
     for v in [3i32, 1, 0] {
-        out.extend(v.to_le_bytes());
+        out.put(v.to_le_bytes());
     }
-    out.extend(n.to_le_bytes());
+    out.put(n.to_le_bytes());
     for tag in 1..=n {
-        out.extend(tag.to_le_bytes());
+        out.put(tag.to_le_bytes());
     }
     for p in mesh.vertices() {
         for c in p {
-            out.extend(c.to_le_bytes());
+            out.put(c.to_le_bytes());
         }
     }
-    out.extend(b"\n$EndNodes\n$Elements\n");
+    out.bytes.extend(b"\n$EndNodes\n$Elements\n");
     let mut runs: Vec<(u32, usize, usize)> = Vec::new();
     for (t, &r) in mesh.regions().iter().enumerate() {
         match runs.last_mut() {
@@ -961,20 +992,20 @@ pub fn encode_gmsh41_binary(mesh: &TetMesh) -> Result<Vec<u8>, IoError> {
     }
     let t = mesh.tets().len() as u64;
     for v in [runs.len() as u64, t, 1, t] {
-        out.extend(v.to_le_bytes());
+        out.put(v.to_le_bytes());
     }
     for (r, start, end) in runs {
         for v in [3, entity(r), 4] {
-            out.extend(v.to_le_bytes());
+            out.put(v.to_le_bytes());
         }
-        out.extend(((end - start) as u64).to_le_bytes());
+        out.put(((end - start) as u64).to_le_bytes());
         for (e, tet) in mesh.tets().iter().enumerate().take(end).skip(start) {
-            out.extend((e as u64 + 1).to_le_bytes());
+            out.put((e as u64 + 1).to_le_bytes());
             for &i in tet {
-                out.extend((u64::from(i) + 1).to_le_bytes());
+                out.put((u64::from(i) + 1).to_le_bytes());
             }
         }
     }
-    out.extend(b"\n$EndElements\n");
-    Ok(out)
+    out.bytes.extend(b"\n$EndElements\n");
+    Ok(out.bytes)
 }

@@ -101,15 +101,28 @@ pub enum IoError {
         /// The file.
         file: String,
     },
-    /// A text mesh file (Gmsh, legacy VTK, VTK XML) that does not parse: a missing section, a
-    /// malformed number, a count that disagrees with the data, an element naming a node that does
-    /// not exist.
+    /// A mesh file (Gmsh, legacy VTK, VTK XML) that does not parse where it is text: a missing
+    /// section, a malformed number, a count that disagrees with the data, an element naming a
+    /// node that does not exist, or a VTK XML `DataArray` (on the line of its tag) whose binary
+    /// data does not decode.
     #[error("{file}: line {line}: {what}")]
     Syntax {
         /// The file.
         file: String,
         /// The line (1-based) where the problem shows.
         line: usize,
+        /// What is wrong there.
+        what: String,
+    },
+    /// Binary mesh data (binary MSH, `BINARY` legacy VTK) that does not decode: a count beyond
+    /// the bytes the file holds, a value out of range, a section that does not end where its
+    /// counts say.
+    #[error("{file}: byte {}: {what}", grouped(*.offset))]
+    Binary {
+        /// The file.
+        file: String,
+        /// Where the problem shows, in bytes from the start of the file.
+        offset: u64,
         /// What is wrong there.
         what: String,
     },
@@ -141,6 +154,7 @@ impl IoError {
             | Self::BadSpacing { file, .. }
             | Self::Volume { file, .. }
             | Self::Syntax { file, .. }
+            | Self::Binary { file, .. }
             | Self::Mesh { file, .. }
             | Self::UnknownFormat { file } => file,
         }

@@ -5,14 +5,20 @@
 //! as `Ok` or `Err`; a panic fails the property. Volumes are tiny so that 256 cases per property
 //! run in well under a second.
 //!
-//! The text mesh decoders (Gmsh 2.2 and 4.1, legacy VTK, VTK XML) get the same treatment from a
+//! The mesh decoders (Gmsh 2.2 and 4.1, legacy VTK, VTK XML) get the same treatment from a
 //! deterministic generator: valid encodings of a small cylinder with bytes changed, cut short,
 //! lines deleted, duplicated or swapped, and numbers replaced by extreme ones, a few hundred
-//! cases per decoder.
+//! cases per decoder. Every binary variant (MSH 4.1, legacy VTK in both cell layouts, VTK XML
+//! inline, appended raw and base64, zlib-compressed or not, both header types and byte orders)
+//! also has aligned 4- and 8-byte words overwritten with extreme values, which is where its
+//! counts and sizes are: a decoder that trusted one for an allocation would abort the test
+//! (a capacity overflow or an allocation of terabytes), not merely fail it. The files written
+//! by meshio and VTK under `tests/data/foreign` are damaged the same way.
 
 use crate::{
-    decode_gmsh, decode_inr, decode_nifti, decode_volume, decode_vtk_legacy, decode_vtu,
-    encode_gmsh22, encode_inr, encode_nifti, encode_vtk_legacy, encode_vtu,
+    VtkCells, VtuBinary, VtuData, decode_gmsh, decode_inr, decode_nifti, decode_volume,
+    decode_vtk_legacy, decode_vtu, encode_gmsh22, encode_gmsh41_binary, encode_inr, encode_nifti,
+    encode_vtk_legacy, encode_vtk_legacy_binary, encode_vtu, encode_vtu_binary,
 };
 use incise_grid::LabelVolume;
 use incise_mesh::TetMesh;
@@ -190,8 +196,9 @@ fn encode_gmsh41(mesh: &TetMesh) -> (String, TetMesh) {
 }
 
 /// `text` damaged one way: bytes changed, cut short, a line deleted, duplicated or swapped with
-/// another, or a token replaced by an extreme one.
-fn damage(text: &str, rng: &mut SplitMix) -> String {
+/// another, a token replaced by an extreme one, or an aligned word overwritten with an extreme
+/// value.
+fn damage(text: &[u8], rng: &mut SplitMix) -> Vec<u8> {
     const BYTES: &[u8] = b"0123456789-+.eE \n\t$<>/\"'=_xX\0\xff";
     const TOKENS: [&str; 12] = [
         "-1",
@@ -207,7 +214,9 @@ fn damage(text: &str, rng: &mut SplitMix) -> String {
         "</DataArray>",
         "<DataArray format=\"binary\">",
     ];
-    let mut bytes = text.as_bytes().to_vec();
+    const WORDS: [u64; 8] =
+        [0, 1, 0xff, 0x7fff_ffff, 0xffff_ffff, 1 << 40, 0x7fff_ffff_ffff_ffff, u64::MAX];
+    let mut bytes = text.to_vec();
     let line_starts: Vec<usize> = std::iter::once(0)
         .chain(bytes.iter().enumerate().filter(|&(_, &b)| b == b'\n').map(|(i, _)| i + 1))
         .filter(|&i| i < bytes.len())
@@ -217,7 +226,7 @@ fn damage(text: &str, rng: &mut SplitMix) -> String {
         let end = line_starts.get(k + 1).copied().unwrap_or(bytes.len());
         start..end
     };
-    match rng.below(6) {
+    match rng.below(8) {
         0 => {
             for _ in 0..=rng.below(4) {
                 let at = rng.below(bytes.len());
@@ -247,6 +256,17 @@ fn damage(text: &str, rng: &mut SplitMix) -> String {
                 bytes.splice(a, second);
             }
         }
+        6 | 7 => {
+            // Overwrite an aligned word, in either byte order.
+            let width = if rng.below(2) == 0 { 4 } else { 8 };
+            let at = rng.below(bytes.len()) / width * width;
+            let word = WORDS[rng.below(WORDS.len())];
+            let le = word.to_le_bytes();
+            let be = word.to_be_bytes();
+            let value = if rng.below(2) == 0 { &le[..width] } else { &be[8 - width..] };
+            let end = (at + width).min(bytes.len());
+            bytes[at..end].copy_from_slice(&value[..end - at]);
+        }
         _ => {
             // Replace the token around a random byte.
             let at = rng.below(bytes.len());
@@ -257,31 +277,32 @@ fn damage(text: &str, rng: &mut SplitMix) -> String {
             bytes.splice(start..end.max(start), token);
         }
     }
-    String::from_utf8_lossy(&bytes).into_owned()
+    bytes
 }
 
+/// A decoder of meshes.
+type Decode = fn(&[u8], &str) -> Result<TetMesh, crate::IoError>;
+
 /// Feeds 400 damaged versions of `valid`, which decodes to `mesh`, to `decode`; none may panic,
-/// and the damage must make at least a third of them errors (else it is not reaching the parser).
-fn fuzz_mesh_decoder(
-    seed: u64,
-    (valid, mesh): (String, TetMesh),
-    decode: fn(&str, &str) -> Result<TetMesh, crate::IoError>,
-) {
-    let valid = valid.as_str();
+/// and the damage must make at least a quarter of them errors (else it is not reaching the
+/// parser).
+fn fuzz_mesh_decoder(seed: u64, (valid, mesh): (impl AsRef<[u8]>, TetMesh), decode: Decode) {
+    let valid = valid.as_ref();
     assert_eq!(decode(valid, "valid").expect("the valid encoding decodes"), mesh);
     let mut rng = SplitMix(seed);
     let cases = 400;
     let mut errors = 0;
     for case in 0..cases {
-        let text = damage(valid, &mut rng);
-        let result = std::panic::catch_unwind(|| decode(&text, "fuzz"))
-            .unwrap_or_else(|_| panic!("case {case} of seed {seed} panicked on:\n{text}"));
+        let bytes = damage(valid, &mut rng);
+        let result = std::panic::catch_unwind(|| decode(&bytes, "fuzz")).unwrap_or_else(|_| {
+            panic!("case {case} of seed {seed} panicked on:\n{}", String::from_utf8_lossy(&bytes))
+        });
         if let Err(e) = result {
             assert_eq!(e.file(), "fuzz");
             errors += 1;
         }
     }
-    assert!(errors * 3 >= cases, "only {errors} of {cases} damaged encodings were refused");
+    assert!(errors * 4 >= cases, "only {errors} of {cases} damaged encodings were refused");
 }
 
 #[test]
@@ -305,4 +326,73 @@ fn damaged_vtk_legacy_never_panics() {
 fn damaged_vtu_never_panics() {
     let mesh = small_mesh();
     fuzz_mesh_decoder(4, (encode_vtu(&mesh), mesh), decode_vtu);
+}
+
+#[test]
+fn damaged_gmsh41_binary_never_panics() {
+    let mesh = small_mesh();
+    let bytes = encode_gmsh41_binary(&mesh).expect("small regions fit");
+    fuzz_mesh_decoder(5, (bytes, mesh), decode_gmsh);
+}
+
+#[test]
+fn damaged_vtk_legacy_binary_never_panics() {
+    let mesh = small_mesh();
+    for (seed, cells) in [(6, VtkCells::Classic), (7, VtkCells::OffsetsConnectivity)] {
+        let bytes = encode_vtk_legacy_binary(&mesh, cells);
+        fuzz_mesh_decoder(seed, (bytes, mesh.clone()), decode_vtk_legacy);
+    }
+}
+
+#[test]
+fn damaged_vtu_binary_never_panics() {
+    let mesh = small_mesh();
+    let variants = [
+        VtuBinary::default(),
+        VtuBinary { zlib: true, block_size: 100, ..VtuBinary::default() },
+        VtuBinary { data: VtuData::AppendedRaw, ..VtuBinary::default() },
+        VtuBinary {
+            data: VtuData::AppendedRaw,
+            zlib: true,
+            header64: true,
+            big_endian: true,
+            block_size: 64,
+        },
+        VtuBinary { data: VtuData::AppendedBase64, zlib: true, ..VtuBinary::default() },
+    ];
+    for (seed, options) in (8..).zip(variants) {
+        fuzz_mesh_decoder(seed, (encode_vtu_binary(&mesh, options), mesh.clone()), decode_vtu);
+    }
+}
+
+#[test]
+fn damaged_foreign_files_never_panic() {
+    macro_rules! foreign {
+        ($file:literal) => {
+            ($file, include_bytes!(concat!("../tests/data/foreign/", $file)).as_slice())
+        };
+    }
+    let files: [(&str, &[u8]); 12] = [
+        foreign!("meshio_binary.msh"),
+        foreign!("meshio_ascii.msh"),
+        foreign!("meshio_ascii.vtu"),
+        foreign!("meshio_zlib.vtu"),
+        foreign!("meshio_uint64.vtu"),
+        foreign!("meshio_51_binary.vtk"),
+        foreign!("meshio_42_binary.vtk"),
+        foreign!("vtk_appended_raw.vtu"),
+        foreign!("vtk_appended_raw_zlib64.vtu"),
+        foreign!("vtk_appended_base64_zlib.vtu"),
+        foreign!("vtk_binary_bigendian.vtu"),
+        foreign!("vtk_binary.vtk"),
+    ];
+    for (seed, (file, bytes)) in (20..).zip(files) {
+        let decode: Decode = match file.rsplit('.').next() {
+            Some("msh") => decode_gmsh,
+            Some("vtk") => decode_vtk_legacy,
+            _ => decode_vtu,
+        };
+        let mesh = decode(bytes, file).unwrap_or_else(|e| panic!("{e}"));
+        fuzz_mesh_decoder(seed, (bytes, mesh), decode);
+    }
 }

@@ -1,15 +1,16 @@
 //! Reading and writing segmented label volumes: NIfTI-1 single-file images (`.nii`, `.nii.gz`)
-//! and INRIMAGE-4 images (`.inr`, `.inr.gz`); and reading tetrahedral meshes: Gmsh MSH 2.2 and
-//! 4.1 (`.msh`), legacy VTK (`.vtk`) and VTK XML unstructured grids (`.vtu`), all ASCII
-//! ([`read_tet_mesh`]).
+//! and INRIMAGE-4 images (`.inr`, `.inr.gz`); and reading tetrahedral meshes
+//! ([`read_tet_mesh`]) as meshing tools write them by default: Gmsh MSH 2.2 (ASCII) and 4.1
+//! (ASCII or binary) (`.msh`), legacy VTK, ASCII or `BINARY` (`.vtk`), and VTK XML unstructured
+//! grids (`.vtu`) with ASCII, base64 or appended raw data, zlib-compressed or not.
 //!
 //! Every volume reader returns an [`incise_grid::LabelVolume`] in metres, and every error names the
 //! file and what in it is wrong. Decoders never panic and never allocate more than the header says
 //! the data needs: a header announcing more voxels than the file holds is reported as truncated
 //! before the label vector is allocated, and gzip streams are inflated only as far as the header
 //! asks. Gzip is recognised by its magic bytes, whatever the file is called. Mesh readers name
-//! the line of every error and let vectors grow only with the data actually read, whatever counts
-//! a header announces.
+//! the line (text) or byte offset (binary) or `DataArray` (VTU) of every error, and allocate only
+//! for data actually present, whatever counts a header announces.
 //!
 //! This crate knows geometry (`incise_grid`'s volumes, `incise_mesh`'s tetrahedra), not
 //! mechanics: scene files, which name a volume and configure a simulation, are read by
@@ -29,8 +30,9 @@ pub use error::IoError;
 pub use inr::{decode_inr, encode_inr, read_inr, write_inr};
 pub use nifti::{decode_nifti, encode_nifti, read_nifti, write_nifti};
 pub use tet_mesh::{
-    decode_gmsh, decode_vtk_legacy, decode_vtu, encode_gmsh22, encode_vtk_legacy, encode_vtu,
-    read_tet_mesh,
+    VtkCells, VtuBinary, VtuData, decode_gmsh, decode_vtk_legacy, decode_vtu, encode_gmsh22,
+    encode_gmsh41_binary, encode_vtk_legacy, encode_vtk_legacy_binary, encode_vtu,
+    encode_vtu_binary, read_tet_mesh,
 };
 
 use incise_grid::LabelVolume;

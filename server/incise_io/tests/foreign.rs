@@ -1,12 +1,15 @@
-//! Files as other tools write them, built byte by byte: big-endian NIfTI and INR, float and
-//! signed voxel types, scaled values, units, and the three NIfTI placement methods.
+//! Files as other tools write them: volumes built byte by byte (big-endian NIfTI and INR, float
+//! and signed voxel types, scaled values, units, and the three NIfTI placement methods), and
+//! tetrahedral meshes written by meshio and VTK themselves (`data/foreign`, made by
+//! `make_foreign.py` there), in every encoding those tools write by default or on request.
 
 #![allow(clippy::float_cmp, reason = "exact values are written and must read back exactly")]
 
 mod common;
 
 use common::{Nifti, assert_close, gz, inr_file};
-use incise_io::{decode_inr, decode_nifti};
+use incise_mesh::TetMesh;
+use incise_io::{decode_gmsh, decode_inr, decode_nifti, decode_vtk_legacy, decode_vtu};
 
 fn labels_le<T: Copy>(values: &[T], to: impl Fn(T) -> Vec<u8>) -> Vec<u8> {
     values.iter().flat_map(|&v| to(v)).collect()
@@ -201,4 +204,90 @@ fn inr_signed_and_float_types_and_defaults() {
     let fields = "XDIM=2\nYDIM=1\nZDIM=1\nTYPE=float\nPIXSIZE=64 bits\nCPU=alpha\n";
     let data = labels_le(&[9.0f64, 0.0], |v| v.to_le_bytes().to_vec());
     assert_eq!(decode_inr(&inr_file(fields, 256, &data), "d.inr").unwrap().labels(), &[9, 0]);
+}
+
+/// The cube of `make_foreign.py`: side 1/32 at (1/8, -1/4, 1/2), corner `i` at bits (x, y, z)
+/// of `i`, the centre last.
+fn foreign_points() -> Vec<[f64; 3]> {
+    let side = 1.0 / 32.0;
+    let mut points: Vec<[f64; 3]> = (0..8)
+        .map(|i| [f64::from(i & 1), f64::from((i >> 1) & 1), f64::from((i >> 2) & 1)])
+        .map(|[x, y, z]| [0.125 + x * side, -0.25 + y * side, 0.5 + z * side])
+        .collect();
+    points.push([0.125 + side / 2.0, -0.25 + side / 2.0, 0.5 + side / 2.0]);
+    points
+}
+
+/// The twelve tetrahedra of `make_foreign.py`, as it printed them: two per cube face, each
+/// with the centre, positively oriented.
+const FOREIGN_TETS: [[u32; 4]; 12] = [
+    [0, 2, 6, 8],
+    [0, 6, 4, 8],
+    [1, 5, 7, 8],
+    [1, 7, 3, 8],
+    [0, 4, 5, 8],
+    [0, 5, 1, 8],
+    [2, 3, 7, 8],
+    [2, 7, 6, 8],
+    [0, 1, 3, 8],
+    [0, 3, 2, 8],
+    [4, 6, 7, 8],
+    [4, 7, 5, 8],
+];
+
+/// Every fixture, with the reader for its format.
+fn foreign_meshes() -> Vec<(&'static str, Result<TetMesh, incise_io::IoError>)> {
+    macro_rules! read {
+        ($decode:ident, $file:literal) => {
+            ($file, $decode(include_bytes!(concat!("data/foreign/", $file)), $file))
+        };
+    }
+    vec![
+        read!(decode_gmsh, "meshio_binary.msh"),
+        read!(decode_gmsh, "meshio_ascii.msh"),
+        read!(decode_vtu, "meshio_ascii.vtu"),
+        read!(decode_vtu, "meshio_zlib.vtu"),
+        read!(decode_vtu, "meshio_uint64.vtu"),
+        read!(decode_vtu, "vtk_appended_raw.vtu"),
+        read!(decode_vtu, "vtk_appended_raw_zlib64.vtu"),
+        read!(decode_vtu, "vtk_appended_base64_zlib.vtu"),
+        read!(decode_vtu, "vtk_binary_bigendian.vtu"),
+        read!(decode_vtk_legacy, "meshio_51_binary.vtk"),
+        read!(decode_vtk_legacy, "meshio_42_binary.vtk"),
+        read!(decode_vtk_legacy, "vtk_binary.vtk"),
+    ]
+}
+
+#[test]
+fn meshes_written_by_meshio_and_vtk_read_alike() {
+    // Six tetrahedra in physical group 11, then (after two triangles, which are skipped) six in
+    // group 12. Gmsh files carry the groups through $Entities, VTK files as the cell array
+    // gmsh:physical, after a float array that is not a label.
+    let regions: Vec<u32> = [11; 6].into_iter().chain([12; 6]).collect();
+    let points = foreign_points();
+    for (file, mesh) in foreign_meshes() {
+        let mesh = mesh.unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(mesh.vertices(), &points[..], "{file}");
+        assert_eq!(mesh.tets(), &FOREIGN_TETS, "{file}");
+        assert_eq!(mesh.regions(), &regions[..], "{file}");
+    }
+}
+
+#[test]
+fn damaged_foreign_meshes_say_where() {
+    let bytes: &[u8] = include_bytes!("data/foreign/vtk_appended_raw_zlib64.vtu");
+    // Cut inside the appended data: the error names the array and the line of its tag.
+    let end = bytes.windows(15).rposition(|w| w == b"</AppendedData>").unwrap();
+    let mut cut = bytes[..end - 40].to_vec();
+    cut.extend_from_slice(&bytes[end..]);
+    let e = decode_vtu(&cut, "cut.vtu").unwrap_err().to_string();
+    assert!(e.starts_with("cut.vtu: line ") && e.contains("DataArray \""), "{e}");
+
+    let bytes: &[u8] = include_bytes!("data/foreign/meshio_binary.msh");
+    let e = decode_gmsh(&bytes[..bytes.len() / 2], "cut.msh").unwrap_err().to_string();
+    assert!(e.starts_with("cut.msh: byte "), "{e}");
+
+    let bytes: &[u8] = include_bytes!("data/foreign/vtk_binary.vtk");
+    let e = decode_vtk_legacy(&bytes[..300], "cut.vtk").unwrap_err().to_string();
+    assert!(e.starts_with("cut.vtk: byte ") && e.contains("the file holds"), "{e}");
 }

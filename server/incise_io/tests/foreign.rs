@@ -8,8 +8,8 @@
 mod common;
 
 use common::{Nifti, assert_close, gz, inr_file};
-use incise_mesh::TetMesh;
 use incise_io::{decode_gmsh, decode_inr, decode_nifti, decode_vtk_legacy, decode_vtu};
+use incise_mesh::TetMesh;
 
 fn labels_le<T: Copy>(values: &[T], to: impl Fn(T) -> Vec<u8>) -> Vec<u8> {
     values.iter().flat_map(|&v| to(v)).collect()

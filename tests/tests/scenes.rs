@@ -432,6 +432,64 @@ fn a_tensor_mass_step_is_driven_by_its_inputs_too() {
     assert_eq!(twin.step(&none).unwrap().state_hash, a.state_hash);
 }
 
+/// Paper 2's explicit scheme cannot step tensor-mass tetrahedra at 10 ms; implicit Euler through
+/// the same force-field interface as the hexahedra can, and comes to rest where the explicit
+/// scheme does (both settle on the static equilibrium: the implicit step's force balance holds to
+/// its CG tolerance, 1e-9 here, and the explicit run's motion has decayed by e⁻⁸⁰).
+#[test]
+fn implicit_tensor_mass_is_stable_at_10_ms_and_settles_where_the_explicit_scheme_does() {
+    let scene = |kind: &str, dt: &str| {
+        tensor_mass_scene("elasticity = \"svk\"\nincompressibility = 1e5\n", dt)
+            .replace("youngs_modulus = 1000.0", "youngs_modulus = 100000.0")
+            .replace("kind = \"explicit\"", &format!("kind = \"{kind}\""))
+            .replace(&format!("dt = {dt}"), &format!("dt = {dt}\nrayleigh_alpha = 40.0"))
+    };
+    let build = |text: &str| {
+        let config = SceneConfig::from_toml(text, "tm.toml").unwrap();
+        let volume = config.procedural_volume().unwrap();
+        Simulation::new(&config, &volume, "tm.toml")
+    };
+    let err = build(&scene("explicit", "0.01")).err().expect("10 ms is above the stable step");
+    assert!(err.to_string().contains("stable explicit step"), "{err}");
+    let settle = |sim: &mut Simulation, steps: usize| {
+        let mut peak = 0.0f64;
+        for _ in 0..steps {
+            let frame = sim.step(&StepInputs::default()).unwrap();
+            assert!(frame.positions.iter().flatten().all(|c| c.is_finite()));
+            let rest = &sim.tet().unwrap().model.rest;
+            for (p, q) in frame.positions.iter().zip(rest) {
+                peak = peak.max((0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt());
+            }
+        }
+        (sim.state().x.clone(), peak)
+    };
+    let mut implicit = build(
+        &scene("implicit-euler", "0.01")
+            .replace("rayleigh_alpha = 40.0", "rayleigh_alpha = 40.0\ncg_tolerance = 1e-9"),
+    )
+    .unwrap();
+    assert_eq!(implicit.explicit_stable_dt(), None);
+    let (x_implicit, peak) = settle(&mut implicit, 200);
+    let mut explicit = build(&scene("explicit", "0.0001")).unwrap();
+    let (x_explicit, _) = settle(&mut explicit, 20_000);
+    let rest = &implicit.tet().unwrap().model.rest;
+    let sag = x_explicit.iter().zip(rest).map(|(p, q)| (q[2] - p[2]).abs()).fold(0.0, f64::max);
+    let gap = x_implicit
+        .iter()
+        .zip(&x_explicit)
+        .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    println!(
+        "sag {:.3} mm, implicit vs explicit at rest {gap:.2e} m, implicit peak {:.3} mm",
+        sag * 1e3,
+        peak * 1e3
+    );
+    assert!(sag > 1e-4, "the block sags under its weight ({sag:e} m)");
+    assert!(gap <= 1e-6 * sag, "implicit and explicit rest {gap:e} m apart (sag {sag:e} m)");
+    // Bounded: a 10 ms step that overshoots a little is fine, one that blows up is not.
+    assert!(peak <= 3.0 * sag, "peak displacement {peak:e} m against a sag of {sag:e} m");
+}
+
 #[test]
 fn tensor_mass_keys_are_checked() {
     let ok = tensor_mass_scene("elasticity = \"svk\"\nincompressibility = 1e5\n", "1e-4");
@@ -442,10 +500,18 @@ fn tensor_mass_keys_are_checked() {
         e.to_string().contains("model.elasticity") && e.to_string().contains("neo-hookean"),
         "{e}"
     );
-    let e = error(
-        &tensor_mass_scene("", "1e-4").replace("kind = \"explicit\"", "kind = \"implicit-euler\""),
+    let implicit =
+        tensor_mass_scene("", "1e-4").replace("kind = \"explicit\"", "kind = \"implicit-euler\"");
+    assert!(SceneConfig::from_toml(&implicit, "tm.toml").is_ok());
+    let e = error(&implicit.replace("kind = \"implicit-euler\"", "kind = \"static\""));
+    assert!(
+        e.to_string().contains("integrator.kind") && e.to_string().contains("hexahedra"),
+        "{e}"
     );
-    assert!(e.to_string().contains("integrator.kind") && e.to_string().contains("explicit"), "{e}");
+    let e = error(&implicit.replace("dt = 1e-4", "dt = 1e-4\nsolver = \"cholesky-cg\""));
+    assert!(e.to_string().contains("integrator.solver"), "{e}");
+    let e = error(&implicit.replace("dt = 1e-4", "dt = 1e-4\nmass = \"consistent\""));
+    assert!(e.to_string().contains("integrator.mass"), "{e}");
     let e = error(&tensor_mass_scene("adaptive_threshold = -1.0\n", "1e-4"));
     assert!(e.to_string().contains("model.adaptive_threshold"), "{e}");
     let e = error(&tensor_mass_scene("fibre_ratio = 2.0\n", "1e-4"));

@@ -827,11 +827,11 @@ impl SceneConfig {
                 ));
             }
         };
-        if model == ModelKind::TensorMass && integrator != IntegratorKind::Explicit {
+        if model == ModelKind::TensorMass && integrator == IntegratorKind::Static {
             return Err(c.invalid(
                 i.kind.span(),
                 "integrator.kind",
-                "must be \"explicit\" with `model.kind = \"tensor-mass\"` (paper 2 integrates it explicitly)",
+                "\"static\" is for hexahedra; with `model.kind = \"tensor-mass\"` use \"explicit\" (paper 2's central differences) or \"implicit-euler\"",
             ));
         }
         let mass = match &i.mass {
@@ -895,6 +895,25 @@ impl SceneConfig {
                 }
             },
         };
+        if model == ModelKind::TensorMass
+            && let Some((span, key, what)) = i
+                .solver
+                .as_ref()
+                .filter(|_| solver != incise_fem::ode::LinearSolver::JacobiCg)
+                .map(|v| (v.span(), "integrator.solver", "a sparse factor"))
+                .or_else(|| {
+                    i.mass
+                        .as_ref()
+                        .filter(|_| mass == incise_fem::ode::MassMatrix::Consistent)
+                        .map(|v| (v.span(), "integrator.mass", "a consistent mass matrix"))
+                })
+        {
+            return Err(c.invalid(
+                span,
+                key,
+                format!("tensor-mass tetrahedra have no {what}; use the default (`solver = \"jacobi-cg\"`, `mass = \"lumped\"`)"),
+            ));
+        }
         if integrator == IntegratorKind::ImplicitEuler
             && solver == incise_fem::ode::LinearSolver::Cholesky
             && let Some(t) = &i.cg_tolerance

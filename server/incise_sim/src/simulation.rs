@@ -139,14 +139,24 @@ pub struct TetBody {
     pub force_field: TensorMassForceField,
     /// The incompressibility penalty, when configured.
     pub penalty: Option<Incompressibility>,
-    /// The largest stable step of the mesh and material (s); the scene's dt is at most this.
+    /// The largest stable explicit step of the mesh and material (s); with the explicit
+    /// integrator the scene's dt is at most this.
     pub stable_dt: f64,
     /// Grid cell (at the scene's level) of each group of 6 tetrahedra.
     cells: Vec<[usize; 3]>,
     /// Voxels per axis of the (filtered, strided) volume.
     voxel_dims: [usize; 3],
-    external: Vec<Vec3>,
-    integrator: CentralDifference,
+    /// Gravity on the lumped masses plus the patch loads, as per-vertex forces.
+    loads: Loads,
+    integrator: TetIntegrator,
+}
+
+/// How a tensor-mass scene steps.
+enum TetIntegrator {
+    /// Paper 2's central differences.
+    Explicit(CentralDifference),
+    /// Linearised backward Euler through the same force-field interface as the hexahedra.
+    Implicit(Box<BackwardEuler>),
 }
 
 enum Body {
@@ -467,23 +477,42 @@ impl Simulation {
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
             Body::Tet(tet) => {
-                if tet.force_field.elasticity()
-                    == incise_fem::forcefield::tet::Elasticity::StVenantKirchhoff
-                {
-                    counters.nonlinear_vertices =
-                        tet.force_field.update_adaptive(&tet.model, &tet.topology, &self.state.x);
+                let TetBody { model, topology, force_field, penalty, loads, integrator, .. } =
+                    &mut **tet;
+                let external = with_inputs(&loads.nodal);
+                match integrator {
+                    TetIntegrator::Explicit(cd) => {
+                        if force_field.elasticity()
+                            == incise_fem::forcefield::tet::Elasticity::StVenantKirchhoff
+                        {
+                            force_field.update_adaptive(model, topology, &self.state.x);
+                        }
+                        cd.step(
+                            model,
+                            topology,
+                            force_field,
+                            penalty.as_ref(),
+                            &self.fixed,
+                            external.as_deref().unwrap_or(&loads.nodal),
+                            &mut self.state.x,
+                        );
+                        self.state.v = cd.velocities(&self.state.x);
+                    }
+                    TetIntegrator::Implicit(be) => {
+                        let driven = external.map(|nodal| Loads { gravity: [0.0; 3], nodal });
+                        let mut elastic = force_field.bind(model, topology, penalty.as_ref());
+                        let r = be.step_fields(
+                            model,
+                            &mut [&mut elastic],
+                            &self.fixed,
+                            driven.as_ref().unwrap_or(loads),
+                            &mut self.state,
+                        );
+                        counters.solver_iterations = r.iterations;
+                        counters.solver_residual = r.relative_residual;
+                    }
                 }
-                let external = with_inputs(&tet.external);
-                tet.integrator.step(
-                    &tet.model,
-                    &tet.topology,
-                    &tet.force_field,
-                    tet.penalty.as_ref(),
-                    &self.fixed,
-                    external.as_deref().unwrap_or(&tet.external),
-                    &mut self.state.x,
-                );
-                self.state.v = tet.integrator.velocities(&self.state.x);
+                counters.nonlinear_vertices = force_field.nonlinear_count();
                 return Ok(self.finish(start, counters));
             }
         };
@@ -662,7 +691,10 @@ impl Simulation {
                 Integrator::Explicit { stable_dt: limit, .. } => Some(*limit),
                 _ => None,
             },
-            Body::Tet(tet) => Some(tet.stable_dt),
+            Body::Tet(tet) => match tet.integrator {
+                TetIntegrator::Explicit(_) => Some(tet.stable_dt),
+                TetIntegrator::Implicit(_) => None,
+            },
         }
     }
 
@@ -788,16 +820,28 @@ fn tet_body(
             f[a] += m * config.gravity[a];
         }
     }
-    let integrator = CentralDifference::new(
-        &model,
-        &force_field,
-        &fixed,
-        &model.rest,
-        config.dt,
-        config.rayleigh_alpha,
-    )
-    .map_err(|e| format!("integrator.dt: {e}"))?;
-    let stable_dt = integrator.stable_dt;
+    let stable_dt = incise_fem::ode::central_difference::stable_dt(&model, &force_field, &fixed);
+    let integrator = match config.integrator {
+        IntegratorKind::ImplicitEuler => TetIntegrator::Implicit(Box::new(BackwardEuler::new(
+            config.dt,
+            Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta },
+            CgSettings {
+                tolerance: config.cg_tolerance,
+                max_iterations: 10 * (3 * model.vertex_count()).max(100),
+            },
+        ))),
+        IntegratorKind::Explicit | IntegratorKind::Static => TetIntegrator::Explicit(
+            CentralDifference::new(
+                &model,
+                &force_field,
+                &fixed,
+                &model.rest,
+                config.dt,
+                config.rayleigh_alpha,
+            )
+            .map_err(|e| format!("integrator.dt: {e}"))?,
+        ),
+    };
     Ok((
         TetBody {
             mesh,
@@ -808,7 +852,7 @@ fn tet_body(
             stable_dt,
             cells,
             voxel_dims: volume.dims(),
-            external,
+            loads: Loads { gravity: [0.0; 3], nodal: external },
             integrator,
         },
         fixed,

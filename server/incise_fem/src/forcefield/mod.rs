@@ -1,5 +1,59 @@
 //! Force fields: what computes internal forces and their Jacobian. [`hex`] holds the linear and
-//! corotational hexahedra of the branched grid, [`tet`] paper 2's tensor-mass tetrahedra.
+//! corotational hexahedra of the branched grid, [`tet`] paper 2's tensor-mass tetrahedra; both
+//! reach the integrators through the [`ForceField`] trait, and so will a tool's contact.
 
 pub mod hex;
 pub mod tet;
+
+use crate::model::HexModel;
+use incise_math::Vec3;
+use incise_math::mat3::Mat3;
+
+/// What an integrator needs of a force field. Every method works on whole node vectors, so a
+/// field may run its loops on its executor in whatever partition it likes, as long as its sums
+/// come out the same on any thread count.
+///
+/// The Jacobian is `K = −∂f/∂x`, as the implicit step uses it: for a field whose exact Jacobian
+/// is not symmetric (the corotational rotation term), `K` is the symmetric part the step solves
+/// with. A contact's stiffness enters the implicit matrix through [`ForceField::add_stiffness_times`]
+/// and [`ForceField::add_diagonal_blocks`], like the tissue's.
+///
+/// A field is linearised at the positions of its last [`ForceField::update`]: an integrator calls
+/// it once per step (or Newton iteration) before asking for forces or products.
+pub trait ForceField: Sync {
+    /// Prepares evaluations at positions `x`: what the Jacobian depends on (element rotations,
+    /// which tetrahedra are non-linear) is taken there.
+    fn update(&mut self, x: &[Vec3]);
+
+    /// `f += f(x)`, the field's forces at positions `x` (N per node).
+    fn add_forces(&self, x: &[Vec3], f: &mut [Vec3]);
+
+    /// `out += scale · K p`, with `K` the Jacobian at the last update (and at `x`, for a field
+    /// whose Jacobian depends on the positions directly).
+    fn add_stiffness_times(&self, x: &[Vec3], scale: f64, p: &[Vec3], out: &mut [Vec3]);
+
+    /// `out += f(x) + scale · K p`: an implicit step's right-hand side. A field that can do both in
+    /// one pass over its elements overrides this.
+    fn add_forces_and_stiffness_times(&self, x: &[Vec3], scale: f64, p: &[Vec3], out: &mut [Vec3]) {
+        self.add_forces(x, out);
+        self.add_stiffness_times(x, scale, p, out);
+    }
+
+    /// The field's potential energy at `x` (J).
+    fn energy(&self, x: &[Vec3]) -> f64;
+
+    /// `blocks[n] += K_nn`, the 3×3 diagonal blocks of the Jacobian (a block-Jacobi
+    /// preconditioner's share): an approximation is allowed, as long as it stays symmetric
+    /// positive semi-definite.
+    fn add_diagonal_blocks(&self, x: &[Vec3], blocks: &mut [Mat3]);
+
+    /// The executor the field runs its loops on; an integrator stepping it runs its own loops
+    /// there too.
+    fn executor(&self) -> &crate::exec::Executor;
+
+    /// The hexahedral elasticity behind this field, for the solvers that work element by element
+    /// on it (the two-thread lockstep CG, sparse Cholesky); `None` for every other field.
+    fn hexahedra(&self) -> Option<(&HexModel, &hex::HexForceField)> {
+        None
+    }
+}

@@ -1,8 +1,10 @@
 //! Block-Jacobi preconditioning: the inverse 3×3 diagonal blocks of `a·M + b·K`, per node.
 
+use crate::forcefield::ForceField;
 use crate::forcefield::hex::HexForceField;
 use crate::linsolve::cg::invert_block;
 use crate::model::HexModel;
+use incise_math::Vec3;
 use incise_math::mat3::Mat3;
 
 /// Block-Jacobi preconditioner of `a·M + b·K`.
@@ -39,4 +41,30 @@ pub(crate) fn preconditioner_into(
         }
         *k = invert_block(&blk);
     });
+}
+
+/// Block-Jacobi preconditioner of `a·M + b·K` for any set of force fields: the fields' diagonal
+/// blocks at `x` summed, then per node `b·K_nn + a·m·I` inverted.
+pub(crate) fn field_preconditioner(
+    fields: &[&mut dyn ForceField],
+    x: &[Vec3],
+    mass: &[f64],
+    a: f64,
+    b: f64,
+) -> Vec<Mat3> {
+    let mut blocks = vec![[[0.0; 3]; 3]; mass.len()];
+    for field in fields {
+        field.add_diagonal_blocks(x, &mut blocks);
+    }
+    for (k, &m) in blocks.iter_mut().zip(mass) {
+        let mut blk = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                blk[i][j] = b * k[i][j];
+            }
+            blk[i][i] += a * m;
+        }
+        *k = invert_block(&blk);
+    }
+    blocks
 }

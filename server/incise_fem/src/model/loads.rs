@@ -1,6 +1,6 @@
 //! External loads: gravity on the lumped masses and per-node forces (a patch pull, a tool).
 
-use crate::model::HexModel;
+use crate::model::Mass;
 use incise_math::Vec3;
 
 /// External loads: gravity (m/s²) on every node's lumped mass, plus per-node forces (N).
@@ -42,17 +42,18 @@ impl Loads {
         patch.len()
     }
 
-    /// `f += external forces`.
-    pub fn add_to(&self, model: &HexModel, f: &mut [Vec3]) {
+    /// `f += external forces`, gravity acting on `mass`'s lumped masses.
+    pub fn add_to(&self, mass: &(impl Mass + ?Sized), f: &mut [Vec3]) {
+        let lumped = mass.lumped();
         for (n, fi) in f.iter_mut().enumerate() {
-            self.add_at(model, n, fi);
+            self.add_at(lumped, n, fi);
         }
     }
 
-    /// `f += the external force on node n`.
+    /// `f += the external force on node n`, gravity acting on its lumped mass `lumped[n]`.
     #[inline]
-    pub(crate) fn add_at(&self, model: &HexModel, n: usize, f: &mut Vec3) {
-        let m = model.lumped_mass[n];
+    pub(crate) fn add_at(&self, lumped: &[f64], n: usize, f: &mut Vec3) {
+        let m = lumped[n];
         for k in 0..3 {
             f[k] += m * self.gravity[k];
         }

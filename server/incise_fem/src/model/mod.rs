@@ -1,10 +1,13 @@
 //! The mechanical model: the hexahedral elements of a grid's top level with their condensed
-//! matrices and masses ([`HexModel`]), the external loads ([`Loads`]) and the state ([`State`]).
+//! matrices and masses ([`HexModel`]), the mass an integrator sees ([`Mass`]), the external
+//! loads ([`Loads`]) and the state ([`State`]).
 
 mod hex_model;
 mod loads;
+mod mass;
 mod state;
 
 pub use hex_model::{HexElement, HexModel};
 pub use loads::Loads;
+pub use mass::Mass;
 pub use state::State;

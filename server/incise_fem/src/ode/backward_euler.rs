@@ -4,11 +4,13 @@
 //! extrapolated (`warm_start`).
 
 use crate::constraint::FixedNodes;
+use crate::exec::Executor;
+use crate::forcefield::ForceField;
 use crate::forcefield::hex::{Formulation, HexForceField};
 use crate::linsolve::cg::{CgReport, CgSettings, block_jacobi, solve_against};
 use crate::linsolve::cholesky::{Precision, SystemFactor};
-use crate::linsolve::jacobi::{preconditioner, preconditioner_into};
-use crate::model::{HexModel, Loads, State};
+use crate::linsolve::jacobi::{field_preconditioner, preconditioner, preconditioner_into};
+use crate::model::{HexModel, Loads, Mass, State};
 use crate::ode::Rayleigh;
 use crate::ode::warm_start::{HISTORY, starting_guess};
 use incise_math::Vec3;
@@ -189,7 +191,8 @@ impl BackwardEuler {
         self.pattern_stale = false;
     }
 
-    /// Advances `state` by one step.
+    /// Advances `state` by one step of the hexahedral model `model` with its field `ff` alone:
+    /// [`Self::step_fields`] with that one field.
     ///
     /// # Panics
     /// With a Cholesky solver, if the system is not positive definite on the free nodes (a free
@@ -202,33 +205,70 @@ impl BackwardEuler {
         loads: &Loads,
         state: &mut State,
     ) -> CgReport {
-        let n = model.node_count();
+        self.step_fields(model, &mut [&mut ff.bind(model)], fixed, loads, state)
+    }
+
+    /// Advances `state` by one step under the forces of `fields` (their sum: the tissue, and
+    /// whatever else acts on the same nodes), with `mass` and the external `loads`.
+    ///
+    /// The solver is [`Self::solver`]. Where the fields are one hexahedral elasticity
+    /// ([`ForceField::hexahedra`]) the solves run element by element on it (block-Jacobi CG on
+    /// two threads in lockstep, sparse Cholesky); for any other set of fields the system is
+    /// solved by block-Jacobi CG through the fields' products, whatever solver is set (a sparse
+    /// factor needs the elements' matrices, which only the hexahedra give).
+    ///
+    /// # Panics
+    /// With a Cholesky solver, if the system is not positive definite on the free nodes (a free
+    /// node without mass), which a model built from a grid never has.
+    pub fn step_fields(
+        &mut self,
+        mass: &dyn Mass,
+        fields: &mut [&mut dyn ForceField],
+        fixed: &FixedNodes,
+        loads: &Loads,
+        state: &mut State,
+    ) -> CgReport {
+        let lumped = mass.lumped();
+        let n = lumped.len();
         let h = self.dt;
         let Rayleigh { alpha, beta } = self.damping;
         let started = std::time::Instant::now();
-        ff.update_rotations(model, &state.x);
+        for field in fields.iter_mut() {
+            field.update(&state.x);
+        }
+        let fields: &[&mut dyn ForceField] = fields;
         let rotated = std::time::Instant::now();
+        let exec = fields.first().map_or_else(Executor::single_thread, |f| f.executor().clone());
+        let hexahedra = match fields {
+            [only] => only.hexahedra(),
+            _ => None,
+        };
+        let solver = if hexahedra.is_some() { self.solver } else { LinearSolver::JacobiCg };
         // rhs = h (f_int + f_ext − αM v − (β + h) K v). The lockstep solve forms the element
         // terms itself, in its first pass; the others get them here.
-        let lockstep = self.solver == LinearSolver::JacobiCg && self.mass == MassMatrix::Lumped;
+        let lockstep = hexahedra.is_some()
+            && solver == LinearSolver::JacobiCg
+            && self.mass == MassMatrix::Lumped;
+        let consistent = self.mass == MassMatrix::Consistent && mass.has_consistent();
         let mut rhs = std::mem::take(&mut self.rhs);
         rhs.clear();
         rhs.resize(n, [0.0; 3]);
-        match self.mass {
-            MassMatrix::Lumped => ff.executor().update_elements(&mut rhs, |i, r| {
-                loads.add_at(model, i, r);
-                let m = model.lumped_mass[i];
+        if consistent {
+            loads.add_to(mass, &mut rhs);
+            mass.add_consistent_times(-alpha, &state.v, &mut rhs);
+        } else {
+            exec.update_elements(&mut rhs, |i, r| {
+                loads.add_at(lumped, i, r);
+                let m = lumped[i];
                 for k in 0..3 {
                     r[k] -= alpha * m * state.v[i][k];
                 }
-            }),
-            MassMatrix::Consistent => {
-                loads.add_to(model, &mut rhs);
-                model.add_consistent_mass_times(-alpha, &state.v, &mut rhs);
-            }
+            });
         }
         if !lockstep {
-            ff.add_forces_and_stiffness_times(model, &state.x, -(beta + h), &state.v, &mut rhs);
+            for field in fields {
+                field.add_forces_and_stiffness_times(&state.x, -(beta + h), &state.v, &mut rhs);
+            }
             for r in &mut rhs {
                 for k in 0..3 {
                     r[k] *= h;
@@ -245,30 +285,31 @@ impl BackwardEuler {
         // h‖f_ext‖: B1's trajectory stays within 1e-5 of an exactly solved one (tested). The
         // step's force balance is then exact to the tolerance of the loads, as the static
         // solver's is.
-        let reference = h * load_scale(model, loads, fixed);
+        let reference = h * load_scale(lumped, loads, fixed);
         // CG starts from the last steps' velocity changes extrapolated (a smooth motion's
         // acceleration changes slowly): on B3 at 1 ms the cubic saves half the iterations, to the
         // same tolerance.
         self.history.retain(|d| d.len() == n);
         let mut dv = std::mem::take(&mut self.spare);
         dv.resize(n, [0.0; 3]);
-        starting_guess(ff.executor(), &self.history, &mut dv);
-        let ffr = &*ff;
-        let consistent = self.mass == MassMatrix::Consistent;
+        starting_guess(&exec, &self.history, &mut dv);
+        let x = &state.x;
         let apply = |p: &[Vec3], out: &mut [Vec3]| {
             if consistent {
                 out.fill([0.0; 3]);
-                model.add_consistent_mass_times(a, p, out);
+                mass.add_consistent_times(a, p, out);
             } else {
                 for (i, o) in out.iter_mut().enumerate() {
-                    let m = a * model.lumped_mass[i];
+                    let m = a * lumped[i];
                     *o = [m * p[i][0], m * p[i][1], m * p[i][2]];
                 }
             }
-            ffr.add_stiffness_times(model, b, p, out);
+            for field in fields {
+                field.add_stiffness_times(x, b, p, out);
+            }
         };
-        let report = match self.solver {
-            LinearSolver::JacobiCg if lockstep => {
+        let report = match (solver, hexahedra) {
+            (LinearSolver::JacobiCg, Some((model, ff))) if lockstep => {
                 let stale = self.jacobi.as_ref().is_none_or(|j| {
                     j.used as f64 * h >= JACOBI_MAX_AGE - 1e-12
                         || j.key != (a, b)
@@ -281,16 +322,14 @@ impl BackwardEuler {
                         blocks: Vec::new(),
                         scratch: Vec::new(),
                     });
-                    let mass = &model.lumped_mass;
-                    preconditioner_into(model, ffr, mass, (a, b), &mut j.blocks, &mut j.scratch);
+                    preconditioner_into(model, ff, lumped, (a, b), &mut j.blocks, &mut j.scratch);
                     (j.used, j.key) = (0, (a, b));
                     self.jacobi = Some(j);
                 }
                 let jacobi = self.jacobi.as_mut().expect("built above");
                 jacobi.used += 1;
                 let pre = &jacobi.blocks;
-                let system =
-                    crate::linsolve::lockstep_cg::System { model, ff: ffr, fixed, a, b, pre };
+                let system = crate::linsolve::lockstep_cg::System { model, ff, fixed, a, b, pre };
                 let rhs = crate::linsolve::lockstep_cg::Rhs {
                     x: &state.x,
                     v: &state.v,
@@ -307,23 +346,26 @@ impl BackwardEuler {
                     &mut self.lockstep,
                 )
             }
-            LinearSolver::JacobiCg => {
+            (LinearSolver::JacobiCg, _) => {
                 let diagonal;
-                let mass = if consistent {
-                    diagonal = model.consistent_mass_diagonal();
+                let mass_diagonal = if consistent {
+                    diagonal = mass.consistent_diagonal();
                     &diagonal
                 } else {
-                    &model.lumped_mass
+                    lumped
                 };
-                let pre = preconditioner(model, ffr, mass, a, b);
+                let pre = match hexahedra {
+                    Some((model, ff)) => preconditioner(model, ff, mass_diagonal, a, b),
+                    None => field_preconditioner(fields, x, mass_diagonal, a, b),
+                };
                 solve_against(apply, block_jacobi(&pre), fixed, &rhs, &mut dv, self.cg, reference)
             }
-            LinearSolver::CholeskyCg { refresh_iterations } => {
+            (LinearSolver::CholeskyCg { refresh_iterations }, Some((model, ff))) => {
                 // A node fixed or freed by the edit leaves the old factor without a pivot for it.
                 if self.pattern_stale && !self.factor.as_ref().is_some_and(|f| f.serves(fixed)) {
                     self.factor = None;
                 }
-                self.ensure_factor(model, ffr, fixed, a, b);
+                self.ensure_factor(model, ff, fixed, a, b);
                 let factor = self.factor.as_ref().expect("factorised above");
                 let report = solve_against(
                     apply,
@@ -339,19 +381,22 @@ impl BackwardEuler {
                     || self.since_refresh.refresh_pays(REFRESH_COST);
                 report
             }
-            LinearSolver::Cholesky => {
+            (LinearSolver::Cholesky, Some((model, ff))) => {
                 // The linear model's matrix only changes with the step, the damping, the mass
                 // matrix or the topology (which resets the factor): one factorisation serves
                 // every step.
                 let key = Some((a, b, self.mass));
                 self.refresh |=
-                    ffr.formulation() == Formulation::Corotational || self.factored_for != key;
+                    ff.formulation() == Formulation::Corotational || self.factored_for != key;
                 self.factored_for = key;
-                self.ensure_factor(model, ffr, fixed, a, b);
+                self.ensure_factor(model, ff, fixed, a, b);
                 let mut rr = rhs.clone();
                 fixed.project(&mut rr);
                 self.factor.as_ref().expect("factorised above").solve(&rr, &mut dv);
                 CgReport { iterations: 1, relative_residual: 0.0, converged: true }
+            }
+            (LinearSolver::CholeskyCg { .. } | LinearSolver::Cholesky, None) => {
+                unreachable!("a factor is only asked of hexahedra")
             }
         };
         let solved = std::time::Instant::now();
@@ -453,14 +498,14 @@ impl Cycle {
 
 /// The external forces' norm on the free nodes (gravity on the lumped masses and the nodal
 /// loads), summed in node order.
-fn load_scale(model: &HexModel, loads: &Loads, fixed: &FixedNodes) -> f64 {
+fn load_scale(lumped: &[f64], loads: &Loads, fixed: &FixedNodes) -> f64 {
     let mut sum = 0.0;
-    for i in 0..model.node_count() {
+    for i in 0..lumped.len() {
         if fixed.is_fixed(i) {
             continue;
         }
         let mut f = [0.0; 3];
-        loads.add_at(model, i, &mut f);
+        loads.add_at(lumped, i, &mut f);
         sum += f[0] * f[0] + f[1] * f[1] + f[2] * f[2];
     }
     sum.sqrt()

@@ -9,7 +9,7 @@
 
 use super::element::TetModel;
 use incise_math::Vec3;
-use incise_math::mat3::cross;
+use incise_math::mat3::{cross, dot as dot3};
 
 /// `∂V/∂x_p` for the four vertices of the tetrahedron `p`.
 #[must_use]
@@ -45,6 +45,62 @@ impl Incompressibility {
             for (g, &n) in volume_gradient(&p).iter().zip(&model.tets[t]) {
                 for k in 0..3 {
                     f[n as usize][k] += scale * g[k];
+                }
+            }
+        }
+    }
+
+    /// `out += scale · K p` with the Gauss–Newton part of the penalty's Jacobian,
+    /// `K = Σ (2κ|δ|/V₀) ∇V ∇Vᵀ` (`δ = V/V₀ − 1`): symmetric positive semi-definite, zero at
+    /// rest, and what keeps a compressed tetrahedron from collapsing within one implicit step. The
+    /// part left out, `κ δ|δ| ∇²V`, is small where the penalty is (`δ²` against `|δ|`).
+    pub fn add_stiffness_times(
+        &self,
+        model: &TetModel,
+        live: impl Fn(usize) -> bool,
+        x: &[Vec3],
+        scale: f64,
+        p: &[Vec3],
+        out: &mut [Vec3],
+    ) {
+        for t in (0..model.tets.len()).filter(|&t| live(t)) {
+            let nodes = model.tets[t].map(|n| n as usize);
+            let delta = model.current_volume(t, x) / model.volume[t] - 1.0;
+            let weight = 2.0 * self.kappa * delta.abs() / model.volume[t];
+            if weight == 0.0 {
+                continue;
+            }
+            let g = volume_gradient(&nodes.map(|n| x[n]));
+            let gp: f64 = g.iter().zip(&nodes).map(|(gi, &n)| dot3(gi, &p[n])).sum();
+            for (gi, &n) in g.iter().zip(&nodes) {
+                for k in 0..3 {
+                    out[n][k] += scale * weight * gp * gi[k];
+                }
+            }
+        }
+    }
+
+    /// `blocks[n] += K_nn` of [`Self::add_stiffness_times`]'s Jacobian.
+    pub fn add_diagonal_blocks(
+        &self,
+        model: &TetModel,
+        live: impl Fn(usize) -> bool,
+        x: &[Vec3],
+        blocks: &mut [incise_math::mat3::Mat3],
+    ) {
+        for t in (0..model.tets.len()).filter(|&t| live(t)) {
+            let nodes = model.tets[t].map(|n| n as usize);
+            let delta = model.current_volume(t, x) / model.volume[t] - 1.0;
+            let weight = 2.0 * self.kappa * delta.abs() / model.volume[t];
+            if weight == 0.0 {
+                continue;
+            }
+            let g = volume_gradient(&nodes.map(|n| x[n]));
+            for (gi, &n) in g.iter().zip(&nodes) {
+                for i in 0..3 {
+                    for j in 0..3 {
+                        blocks[n][i][j] += weight * gi[i] * gi[j];
+                    }
                 }
             }
         }

@@ -5,10 +5,12 @@
 //! ([`tensor_mass`]), and the incompressibility penalty (§4, [`incompressible`]). The meshes
 //! themselves are `incise_mesh`'s.
 
+mod elasticity;
 pub mod element;
 pub mod incompressible;
 pub mod tensor_mass;
 
+pub use elasticity::TetElasticity;
 pub use element::{Elasticity, Lame, TetMaterial, TetModel};
 pub use incompressible::Incompressibility;
 pub use tensor_mass::TensorMassForceField;

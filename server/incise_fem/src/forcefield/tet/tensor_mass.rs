@@ -257,6 +257,12 @@ impl TensorMassForceField {
         self
     }
 
+    /// The executor its two term parts run on.
+    #[must_use]
+    pub fn executor(&self) -> &crate::exec::Executor {
+        &self.exec
+    }
+
     /// Precomputes the stiffness tensors of every live tetrahedron of `topo`.
     #[must_use]
     pub fn new(model: &TetModel, topo: &TetTopology, kind: Elasticity) -> Self {
@@ -394,7 +400,7 @@ impl TensorMassForceField {
         let u = displacements(model, x);
         let pairs: Vec<f64> =
             if self.cubic.keys.is_empty() { Vec::new() } else { self.pair_products(&u) };
-        self.chunked(f, |part, out| self.force_part(&u, &pairs, part, out));
+        self.chunked(f, 1.0, |part, out| self.force_part(&u, &pairs, part, out));
     }
 
     /// `Uₐ · Uₐ` per vertex, then `Uₐ · Uᵦ` per edge.
@@ -408,14 +414,41 @@ impl TensorMassForceField {
     /// `out += K(x) v`, the tangent stiffness `−∂f/∂x` at positions `x` times `v` (the same
     /// terms as [`TensorMassForceField::add_forces`]).
     pub fn add_stiffness_times(&self, model: &TetModel, x: &[Vec3], v: &[Vec3], out: &mut [Vec3]) {
+        self.add_scaled_stiffness_times(model, x, 1.0, v, out);
+    }
+
+    /// `out += scale · K(x) v` (see [`TensorMassForceField::add_stiffness_times`]).
+    pub fn add_scaled_stiffness_times(
+        &self,
+        model: &TetModel,
+        x: &[Vec3],
+        scale: f64,
+        v: &[Vec3],
+        out: &mut [Vec3],
+    ) {
         let u = displacements(model, x);
-        self.chunked(out, |part, buf| self.stiffness_part(&u, v, part, buf));
+        self.chunked(out, scale, |part, buf| self.stiffness_part(&u, v, part, buf));
+    }
+
+    /// `blocks[n] += K₀_nn`, the rest stiffness's diagonal blocks (the vertex tensors): the
+    /// block-Jacobi preconditioner of an implicit step. The non-linear terms are left out; any
+    /// symmetric positive definite blocks precondition correctly, and near rest these are the
+    /// Jacobian's.
+    pub fn add_rest_diagonal_blocks(&self, blocks: &mut [Mat3]) {
+        for (block, b) in blocks.iter_mut().zip(&self.vertex_b) {
+            for i in 0..3 {
+                for j in 0..3 {
+                    block[i][j] += b[i][j] + b[j][i];
+                }
+            }
+        }
     }
 
     /// Runs `work(part, buffer)` for the [`PARTS`] fixed parts of the term tables, on two
     /// threads when the mesh is large enough, and adds the buffers to `out` in part order: the
     /// sums do not depend on the thread count.
-    fn chunked(&self, out: &mut [Vec3], work: impl Fn(usize, &mut [Vec3]) + Sync) {
+    /// `scale` multiplies the parts' sum (1 leaves its bits alone).
+    fn chunked(&self, out: &mut [Vec3], scale: f64, work: impl Fn(usize, &mut [Vec3]) + Sync) {
         let n = out.len();
         let mut first = vec![[0.0; 3]; n];
         let mut second = vec![[0.0; 3]; n];
@@ -423,7 +456,7 @@ impl TensorMassForceField {
         self.exec.join_if(terms >= PARALLEL_TERMS, || work(0, &mut first), || work(1, &mut second));
         for ((o, a), b) in out.iter_mut().zip(&first).zip(&second) {
             for k in 0..3 {
-                o[k] += a[k] + b[k];
+                o[k] += scale * (a[k] + b[k]);
             }
         }
     }

@@ -1,17 +1,16 @@
-//! Steps a scene file with a procedural volume and prints, per window of steps, the steps/s and
+//! Steps a scene file (its volume read from disk or built procedurally) and prints, per window of steps, the steps/s and
 //! the mean CG iterations: how a scene's cost changes as its motion settles.
-//! `cargo run --release -p incise_sim --example step_scene -- deploy/scenes/b1.toml 6000 500`
+//! `cargo run --release -p incise_scene --example step_scene -- deploy/scenes/b1.toml 6000 500`
 
-use incise_sim::{SceneConfig, Simulation, StepInputs};
+use incise_sim::{Simulation, StepInputs};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let path = args.get(1).map_or("deploy/scenes/b1.toml", String::as_str);
     let steps: usize = args.get(2).map_or(6000, |s| s.parse().expect("steps"));
     let window: usize = args.get(3).map_or(500, |s| s.parse().expect("window"));
-    let text = std::fs::read_to_string(path).expect("a readable scene file");
-    let config = SceneConfig::from_toml(&text, path).unwrap_or_else(|e| panic!("{e}"));
-    let volume = config.procedural_volume().expect("a scene with a procedural volume");
+    let (config, volume) =
+        incise_scene::read_scene(path.as_ref()).unwrap_or_else(|e| panic!("{e}"));
     let mut sim = Simulation::new(&config, &volume, path).unwrap_or_else(|e| panic!("{e}"));
     let none = StepInputs::default();
     let (mut iterations, mut residual) = (0usize, 0.0f64);

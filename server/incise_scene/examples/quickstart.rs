@@ -1,9 +1,10 @@
-// The README's example: read a scene, build a `Simulation`, step it, cut it, step on.
-// `cargo run --release -p incise_scene --example quickstart`
+//! The README's example: read a scene, build a `Simulation`, step it, cut it, step on.
+//! `cargo run --release -p incise_scene --example quickstart`
 use incise_grid::GridEdit;
 use incise_sim::{Simulation, StepInputs};
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// Steps the liver for 0.2 s, cuts it, and steps once more.
+pub fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = std::path::Path::new("deploy/scenes/liver_13k.toml"); // the liver CT, level 3
     let (config, volume) = incise_scene::read_scene(path)?;
     let mut sim = Simulation::new(&config, &volume, &path.display().to_string())?;

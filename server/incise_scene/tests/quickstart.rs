@@ -1,12 +1,7 @@
 //! The README's Rust example runs, and the README shows it as it is.
 
-mod quickstart {
-    include!("../examples/quickstart.rs");
-
-    pub fn run() -> Result<(), Box<dyn std::error::Error>> {
-        main()
-    }
-}
+#[path = "../examples/quickstart.rs"]
+mod quickstart;
 
 #[test]
 fn the_readme_example_runs_from_the_repository_root() {
@@ -14,7 +9,7 @@ fn the_readme_example_runs_from_the_repository_root() {
     // The example's paths are relative to the root, where the README says to run it (this is the
     // only test in this binary, so changing the directory affects no other).
     std::env::set_current_dir(root).unwrap();
-    quickstart::run().unwrap();
+    quickstart::main().unwrap();
 }
 
 #[test]
@@ -23,6 +18,6 @@ fn the_readme_shows_the_example_as_it_is() {
     let readme = std::fs::read_to_string(format!("{root}/README.md")).unwrap();
     let example = include_str!("../examples/quickstart.rs");
     let code: String =
-        example.lines().skip_while(|l| l.starts_with("// ")).collect::<Vec<_>>().join("\n");
+        example.lines().skip_while(|l| l.starts_with("//!")).collect::<Vec<_>>().join("\n");
     assert!(readme.contains(&code), "README.md's example differs from examples/quickstart.rs");
 }

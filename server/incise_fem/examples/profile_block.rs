@@ -138,7 +138,7 @@ fn main() {
         1e3 * s / steps as f64,
         steps as f64 / s,
         iterations as f64 / steps as f64,
-        be.factorizations
+        be.factorizations()
     );
     if scheme != "explicit" {
         let per = |ns: u64| ns as f64 * 1e-3 / steps as f64;

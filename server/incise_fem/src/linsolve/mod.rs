@@ -7,6 +7,7 @@
 pub mod bicgstab;
 pub mod cg;
 pub mod cholesky;
+pub(crate) mod implicit;
 pub(crate) mod jacobi;
 pub(crate) mod lockstep_cg;
 pub mod ordering;

@@ -6,10 +6,9 @@
 use crate::constraint::FixedNodes;
 use crate::exec::Executor;
 use crate::forcefield::ForceField;
-use crate::forcefield::hex::{Formulation, HexForceField};
-use crate::linsolve::cg::{CgReport, CgSettings, block_jacobi, solve_against};
-use crate::linsolve::cholesky::{Precision, SystemFactor};
-use crate::linsolve::jacobi::{field_preconditioner, preconditioner, preconditioner_into};
+use crate::forcefield::hex::HexForceField;
+use crate::linsolve::cg::{CgReport, CgSettings};
+use crate::linsolve::implicit::{StepRhs, StepSystem, SystemSolver};
 use crate::model::{HexModel, Loads, Mass, State};
 use crate::ode::Rayleigh;
 use crate::ode::warm_start::{HISTORY, starting_guess};
@@ -29,33 +28,6 @@ pub enum LinearSolver {
     },
     /// Sparse Cholesky of the current system every step (exact solve, no iteration).
     Cholesky,
-}
-
-/// The cost of refactorising, in CG iterations with the factor as preconditioner. Measured here:
-/// a numeric factorisation takes 40–50 triangular solves on B1, B2, B3 and a 33×22×18 block (the
-/// ratio hardly moves with size: bigger supernodes run the factorisation faster), and an iteration
-/// adds the operator product to its solve. A count, not a clock, so the choice is the same on every
-/// run and frames stay bit-identical.
-pub const REFRESH_COST: usize = 30;
-
-/// How long (simulated seconds) block-Jacobi blocks serve before they are rebuilt with the
-/// current rotations. Any symmetric positive definite blocks precondition correctly (CG stops at
-/// the same tolerance); stale ones only cost iterations, and over 8 ms the rotations hardly move:
-/// at 1 ms, B2 and B3 take the same iterations per step (2.7, 4.9) with blocks rebuilt every
-/// step or every 8th, and run 23 % faster (building the blocks is an element loop, a scatter and
-/// an inversion per node). At 10 ms they are rebuilt every step, as before.
-const JACOBI_MAX_AGE: f64 = 8e-3;
-
-/// Block-Jacobi blocks and what they were built for.
-struct JacobiBlocks {
-    /// Steps solved with them.
-    used: usize,
-    /// The system's `(a, b)`.
-    key: (f64, f64),
-    /// Inverse diagonal blocks, per node.
-    blocks: Vec<incise_math::mat3::Mat3>,
-    /// Room for the next rebuild's element sums.
-    scratch: Vec<incise_math::mat3::Mat3>,
 }
 
 /// Which mass matrix an implicit step uses.
@@ -81,7 +53,8 @@ pub struct StageTimes {
     pub update_ns: u64,
 }
 
-/// Linearised backward Euler with its solver state (CG warm start, factorisation).
+/// Linearised backward Euler with its linear solver (which keeps its own state between steps:
+/// factor, refresh cycle, Jacobi blocks, workspaces) and the warm start.
 pub struct BackwardEuler {
     /// Time step (s).
     pub dt: f64,
@@ -89,34 +62,18 @@ pub struct BackwardEuler {
     pub damping: Rayleigh,
     /// Linear-solve settings (CG variants).
     pub cg: CgSettings,
-    /// The linear solver.
-    pub solver: LinearSolver,
     /// The mass matrix of the system and of the mass damping (gravity is the same either way:
     /// the consistent mass's rows sum to the lumped one).
     pub mass: MassMatrix,
+    solver: SystemSolver,
     /// The last steps' velocity changes, the most recent first (at most [`HISTORY`]): CG's
     /// starting guess is their extrapolation ([`starting_guess`]).
     history: Vec<Vec<Vec3>>,
-    factor: Option<SystemFactor>,
-    refresh: bool,
-    /// Steps and CG iterations since the last refactorisation (a running count: a server that
-    /// never needs a refresh must not grow a list).
-    since_refresh: Cycle,
-    /// The `(a, b)` and mass matrix of the direct solver's factor `a·M + b·K`.
-    factored_for: Option<(f64, f64, MassMatrix)>,
-    /// The block-Jacobi blocks of the lockstep solve, kept between steps (see
-    /// [`JACOBI_MAX_AGE`]).
-    jacobi: Option<JacobiBlocks>,
-    /// The lockstep solve's vectors, and the step's right-hand side and next starting guess,
-    /// kept between steps (a step allocates nothing once they have their size).
-    lockstep: crate::linsolve::lockstep_cg::Workspace,
-    rhs: Vec<Vec3>,
+    /// The step's node terms, its assembled right-hand side and the next starting guess, kept
+    /// between steps (a step allocates nothing once they have their size).
+    node: Vec<Vec3>,
+    assembled: Vec<Vec3>,
     spare: Vec<Vec3>,
-    /// The factor was built for the model before a topology change that kept every node: good
-    /// as a preconditioner, but its element map is the old model's, so a refresh rebuilds it.
-    pattern_stale: bool,
-    /// Factorisations computed so far (a counter for reports).
-    pub factorizations: usize,
     /// The last step's stage times.
     pub stage_times: StageTimes,
 }
@@ -135,21 +92,26 @@ impl BackwardEuler {
             dt,
             damping,
             cg,
-            solver,
             mass: MassMatrix::Lumped,
+            solver: SystemSolver::new(solver),
             history: Vec::new(),
-            factor: None,
-            refresh: true,
-            since_refresh: Cycle::default(),
-            factored_for: None,
-            jacobi: None,
-            lockstep: crate::linsolve::lockstep_cg::Workspace::default(),
-            rhs: Vec::new(),
+            node: Vec::new(),
+            assembled: Vec::new(),
             spare: Vec::new(),
-            pattern_stale: false,
-            factorizations: 0,
             stage_times: StageTimes::default(),
         }
+    }
+
+    /// The linear solver's kind.
+    #[must_use]
+    pub fn solver(&self) -> LinearSolver {
+        self.solver.kind()
+    }
+
+    /// Factorisations computed so far (a counter for reports).
+    #[must_use]
+    pub fn factorizations(&self) -> usize {
+        self.solver.factorizations()
     }
 
     /// Carries the warm start across a topology change: new node `i` starts from the last step's
@@ -162,9 +124,7 @@ impl BackwardEuler {
     /// Otherwise (and always for the direct solver, which must be exact) the factor is dropped
     /// and rebuilt for the new sparsity pattern.
     pub fn remap_warm_start(&mut self, old_of_new: &[Option<usize>]) {
-        // Extrapolation starts again from the remapped step, and the Jacobi blocks from the new
-        // elements.
-        self.jacobi = None;
+        // Extrapolation starts again from the remapped step.
         let old = std::mem::take(&mut self.history).into_iter().next().unwrap_or_default();
         let same_nodes = old.len() == old_of_new.len()
             && old_of_new.iter().enumerate().all(|(i, &o)| o == Some(i));
@@ -174,21 +134,13 @@ impl BackwardEuler {
                 .map(|o| o.and_then(|j| old.get(j).copied()).unwrap_or([0.0; 3]))
                 .collect(),
         ];
-        if same_nodes && matches!(self.solver, LinearSolver::CholeskyCg { .. }) {
-            self.pattern_stale = self.factor.is_some();
-        } else {
-            self.factor = None;
-            self.refresh = true;
-        }
+        self.solver.topology_changed(same_nodes);
     }
 
     /// Forgets the warm start and the factorisation (after the topology changed).
     pub fn reset_warm_start(&mut self) {
         self.history.clear();
-        self.jacobi = None;
-        self.factor = None;
-        self.refresh = true;
-        self.pattern_stale = false;
+        self.solver.reset();
     }
 
     /// Advances `state` by one step of the hexahedral model `model` with its field `ff` alone:
@@ -239,41 +191,23 @@ impl BackwardEuler {
         let fields: &[&mut dyn ForceField] = fields;
         let rotated = std::time::Instant::now();
         let exec = fields.first().map_or_else(Executor::single_thread, |f| f.executor().clone());
-        let hexahedra = match fields {
-            [only] => only.hexahedra(),
-            _ => None,
-        };
-        let solver = if hexahedra.is_some() { self.solver } else { LinearSolver::JacobiCg };
-        // rhs = h (f_int + f_ext − αM v − (β + h) K v). The lockstep solve forms the element
-        // terms itself, in its first pass; the others get them here.
-        let lockstep = hexahedra.is_some()
-            && solver == LinearSolver::JacobiCg
-            && self.mass == MassMatrix::Lumped;
         let consistent = self.mass == MassMatrix::Consistent && mass.has_consistent();
-        let mut rhs = std::mem::take(&mut self.rhs);
-        rhs.clear();
-        rhs.resize(n, [0.0; 3]);
+        // The node terms of rhs = h (f_ext − αM v + Σ f(x) − (β + h) K v); the solver adds the
+        // fields' terms (see `StepRhs`).
+        let mut node = std::mem::take(&mut self.node);
+        node.clear();
+        node.resize(n, [0.0; 3]);
         if consistent {
-            loads.add_to(mass, &mut rhs);
-            mass.add_consistent_times(-alpha, &state.v, &mut rhs);
+            loads.add_to(mass, &mut node);
+            mass.add_consistent_times(-alpha, &state.v, &mut node);
         } else {
-            exec.update_elements(&mut rhs, |i, r| {
+            exec.update_elements(&mut node, |i, r| {
                 loads.add_at(lumped, i, r);
                 let m = lumped[i];
                 for k in 0..3 {
                     r[k] -= alpha * m * state.v[i][k];
                 }
             });
-        }
-        if !lockstep {
-            for field in fields {
-                field.add_forces_and_stiffness_times(&state.x, -(beta + h), &state.v, &mut rhs);
-            }
-            for r in &mut rhs {
-                for k in 0..3 {
-                    r[k] *= h;
-                }
-            }
         }
         let a = 1.0 + h * alpha;
         let b = h * beta + h * h;
@@ -293,112 +227,9 @@ impl BackwardEuler {
         let mut dv = std::mem::take(&mut self.spare);
         dv.resize(n, [0.0; 3]);
         starting_guess(&exec, &self.history, &mut dv);
-        let x = &state.x;
-        let apply = |p: &[Vec3], out: &mut [Vec3]| {
-            if consistent {
-                out.fill([0.0; 3]);
-                mass.add_consistent_times(a, p, out);
-            } else {
-                for (i, o) in out.iter_mut().enumerate() {
-                    let m = a * lumped[i];
-                    *o = [m * p[i][0], m * p[i][1], m * p[i][2]];
-                }
-            }
-            for field in fields {
-                field.add_stiffness_times(x, b, p, out);
-            }
-        };
-        let report = match (solver, hexahedra) {
-            (LinearSolver::JacobiCg, Some((model, ff))) if lockstep => {
-                let stale = self.jacobi.as_ref().is_none_or(|j| {
-                    j.used as f64 * h >= JACOBI_MAX_AGE - 1e-12
-                        || j.key != (a, b)
-                        || j.blocks.len() != n
-                });
-                if stale {
-                    let mut j = self.jacobi.take().unwrap_or(JacobiBlocks {
-                        used: 0,
-                        key: (a, b),
-                        blocks: Vec::new(),
-                        scratch: Vec::new(),
-                    });
-                    preconditioner_into(model, ff, lumped, (a, b), &mut j.blocks, &mut j.scratch);
-                    (j.used, j.key) = (0, (a, b));
-                    self.jacobi = Some(j);
-                }
-                let jacobi = self.jacobi.as_mut().expect("built above");
-                jacobi.used += 1;
-                let pre = &jacobi.blocks;
-                let system = crate::linsolve::lockstep_cg::System { model, ff, fixed, a, b, pre };
-                let rhs = crate::linsolve::lockstep_cg::Rhs {
-                    x: &state.x,
-                    v: &state.v,
-                    node: &rhs,
-                    h,
-                    s: -(beta + h),
-                    reference,
-                };
-                crate::linsolve::lockstep_cg::solve(
-                    &system,
-                    &rhs,
-                    &mut dv,
-                    self.cg,
-                    &mut self.lockstep,
-                )
-            }
-            (LinearSolver::JacobiCg, _) => {
-                let diagonal;
-                let mass_diagonal = if consistent {
-                    diagonal = mass.consistent_diagonal();
-                    &diagonal
-                } else {
-                    lumped
-                };
-                let pre = match hexahedra {
-                    Some((model, ff)) => preconditioner(model, ff, mass_diagonal, a, b),
-                    None => field_preconditioner(fields, x, mass_diagonal, a, b),
-                };
-                solve_against(apply, block_jacobi(&pre), fixed, &rhs, &mut dv, self.cg, reference)
-            }
-            (LinearSolver::CholeskyCg { refresh_iterations }, Some((model, ff))) => {
-                // A node fixed or freed by the edit leaves the old factor without a pivot for it.
-                if self.pattern_stale && !self.factor.as_ref().is_some_and(|f| f.serves(fixed)) {
-                    self.factor = None;
-                }
-                self.ensure_factor(model, ff, fixed, a, b);
-                let factor = self.factor.as_ref().expect("factorised above");
-                let report = solve_against(
-                    apply,
-                    |r, z| factor.solve(r, z),
-                    fixed,
-                    &rhs,
-                    &mut dv,
-                    self.cg,
-                    reference,
-                );
-                self.since_refresh.record(report.iterations);
-                self.refresh = report.iterations > refresh_iterations
-                    || self.since_refresh.refresh_pays(REFRESH_COST);
-                report
-            }
-            (LinearSolver::Cholesky, Some((model, ff))) => {
-                // The linear model's matrix only changes with the step, the damping, the mass
-                // matrix or the topology (which resets the factor): one factorisation serves
-                // every step.
-                let key = Some((a, b, self.mass));
-                self.refresh |=
-                    ff.formulation() == Formulation::Corotational || self.factored_for != key;
-                self.factored_for = key;
-                self.ensure_factor(model, ff, fixed, a, b);
-                let mut rr = rhs.clone();
-                fixed.project(&mut rr);
-                self.factor.as_ref().expect("factorised above").solve(&rr, &mut dv);
-                CgReport { iterations: 1, relative_residual: 0.0, converged: true }
-            }
-            (LinearSolver::CholeskyCg { .. } | LinearSolver::Cholesky, None) => {
-                unreachable!("a factor is only asked of hexahedra")
-            }
-        };
+        let rhs = StepRhs { x: &state.x, v: &state.v, node: &node, h, s: -(beta + h), reference };
+        let system = StepSystem { mass, consistent, fields, x: &state.x, fixed, a, b, h };
+        let report = self.solver.solve(&system, &rhs, &mut dv, self.cg, &mut self.assembled);
         let solved = std::time::Instant::now();
         for i in 0..n {
             if fixed.is_fixed(i) {
@@ -415,7 +246,7 @@ impl BackwardEuler {
         }
         self.history.truncate(HISTORY - 1);
         self.history.insert(0, dv);
-        self.rhs = rhs;
+        self.node = node;
         let ns = |d: std::time::Duration| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX);
         self.stage_times = StageTimes {
             rotations_ns: ns(rotated - started),
@@ -423,76 +254,6 @@ impl BackwardEuler {
             update_ns: ns(solved.elapsed()),
         };
         report
-    }
-}
-
-impl BackwardEuler {
-    /// Builds the symbolic factorisation once, and refactorises when a refresh is due.
-    fn ensure_factor(
-        &mut self,
-        model: &HexModel,
-        ff: &HexForceField,
-        fixed: &FixedNodes,
-        a: f64,
-        b: f64,
-    ) {
-        // A preconditioner only needs to be close: single precision halves the bytes every
-        // triangular solve reads. The direct solver needs the exact factor.
-        let precision = match self.solver {
-            LinearSolver::CholeskyCg { .. } => Precision::Single,
-            _ => Precision::Double,
-        };
-        if self.refresh && self.pattern_stale {
-            self.factor = None;
-        }
-        if self.factor.is_none() {
-            self.pattern_stale = false;
-            self.factor = Some(
-                SystemFactor::with_precision(model, fixed, precision)
-                    .expect("the system pattern is valid")
-                    .with_executor(ff.executor().clone()),
-            );
-            self.refresh = true;
-        }
-        if self.refresh {
-            let factor = self.factor.as_mut().expect("created above");
-            let consistent = self.mass == MassMatrix::Consistent;
-            if factor.factorize_with(model, ff, a, b, consistent).is_err() {
-                // Rounding to f32 can lose definiteness on a very stiff system: fall back to f64.
-                factor.set_precision(Precision::Double);
-                factor
-                    .factorize_with(model, ff, a, b, consistent)
-                    .expect("a·M + b·K is positive definite on the free nodes");
-            }
-            self.factorizations += 1;
-            self.refresh = false;
-            self.since_refresh = Cycle::default();
-        }
-    }
-}
-
-/// The steps since the last factorisation: how many, their CG iterations in all, and the last
-/// step's.
-#[derive(Clone, Copy, Debug, Default)]
-struct Cycle {
-    steps: usize,
-    iterations: usize,
-    last: usize,
-}
-
-impl Cycle {
-    fn record(&mut self, iterations: usize) {
-        self.steps += 1;
-        self.iterations += iterations;
-        self.last = iterations;
-    }
-
-    /// Whether to refactorise now, a factorisation costing `cost` iterations. The iteration
-    /// counts grow as the rotations drift from the factorised ones; the average cost per step of a
-    /// cycle, `(cost + Σ iterations) / steps`, is least when the cycle ends as soon as the last
-    /// step's count exceeds that average (the renewal rule for a growing running cost).
-    fn refresh_pays(&self, cost: usize) -> bool {
-        self.steps > 0 && self.last * self.steps > cost + self.iterations
     }
 }
 
@@ -509,28 +270,4 @@ fn load_scale(lumped: &[f64], loads: &Loads, fixed: &FixedNodes) -> f64 {
         sum += f[0] * f[0] + f[1] * f[1] + f[2] * f[2];
     }
     sum.sqrt()
-}
-
-#[cfg(test)]
-mod renewal_tests {
-    use super::Cycle;
-
-    #[test]
-    fn a_steady_count_never_refreshes_and_a_growing_one_refreshes_when_it_passes_the_average() {
-        let mut steady = Cycle::default();
-        for _ in 0..100_000 {
-            steady.record(2);
-            assert!(!steady.refresh_pays(30));
-        }
-        // Counts 2, 3, 4, …: after n steps the average is (30 + Σ) / n, and the count n + 1 first
-        // exceeds it at n = 9 (n = 8: 9 · 8 = 72 ≤ 30 + 44; n = 9: 10 · 9 = 90 > 30 + 54).
-        let mut growing = Cycle::default();
-        let first = (1..100)
-            .find(|&n| {
-                growing.record(n + 1);
-                growing.refresh_pays(30)
-            })
-            .unwrap();
-        assert_eq!(first, 9);
-    }
 }

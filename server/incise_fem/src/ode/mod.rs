@@ -14,7 +14,8 @@ pub mod relax;
 pub(crate) mod static_newton;
 pub(crate) mod warm_start;
 
-pub use backward_euler::{BackwardEuler, LinearSolver, MassMatrix, REFRESH_COST, StageTimes};
+pub use crate::linsolve::implicit::REFRESH_COST;
+pub use backward_euler::{BackwardEuler, LinearSolver, MassMatrix, StageTimes};
 pub use central_difference::{CentralDifference, StepTooLarge};
 pub use explicit::{explicit_step, stable_dt};
 pub use rayleigh::Rayleigh;

@@ -480,18 +480,12 @@ impl Simulation {
                 let TetBody { model, topology, force_field, penalty, loads, integrator, .. } =
                     &mut **tet;
                 let external = with_inputs(&loads.nodal);
+                let mut elastic = force_field.bind(model, topology, penalty.as_ref());
                 match integrator {
                     TetIntegrator::Explicit(cd) => {
-                        if force_field.elasticity()
-                            == incise_fem::forcefield::tet::Elasticity::StVenantKirchhoff
-                        {
-                            force_field.update_adaptive(model, topology, &self.state.x);
-                        }
-                        cd.step(
+                        cd.step_fields(
                             model,
-                            topology,
-                            force_field,
-                            penalty.as_ref(),
+                            &mut [&mut elastic],
                             &self.fixed,
                             external.as_deref().unwrap_or(&loads.nodal),
                             &mut self.state.x,
@@ -500,7 +494,6 @@ impl Simulation {
                     }
                     TetIntegrator::Implicit(be) => {
                         let driven = external.map(|nodal| Loads { gravity: [0.0; 3], nodal });
-                        let mut elastic = force_field.bind(model, topology, penalty.as_ref());
                         let r = be.step_fields(
                             model,
                             &mut [&mut elastic],
@@ -597,55 +590,8 @@ impl Simulation {
         }
         let model = hex.model.updated(&hex.grid, &changes);
         let old = &hex.model;
-        // Grid node id → index in the old model (ids beyond the old ones are new nodes).
-        let mut old_index =
-            vec![u32::MAX; old.grid_node.iter().map(|&g| g as usize + 1).max().unwrap_or(0)];
-        for (i, &g) in old.grid_node.iter().enumerate() {
-            old_index[g as usize] = i as u32;
-        }
-        let added: std::collections::BTreeMap<u32, Option<u32>> =
-            changes.top.nodes_added.iter().copied().collect();
-        let n = model.node_count();
-        let mut state = State { x: model.rest.clone(), v: vec![[0.0; 3]; n] };
-        let mut known = vec![false; n];
-        let mut old_of_new: Vec<Option<usize>> = vec![None; n];
-        for (i, &g) in model.grid_node.iter().enumerate() {
-            let source = match added.get(&g) {
-                Some(origin) => *origin,
-                None => Some(g),
-            };
-            if let Some(j) =
-                source.and_then(|s| old_index.get(s as usize).copied()).filter(|&j| j != u32::MAX)
-            {
-                state.x[i] = self.state.x[j as usize];
-                state.v[i] = self.state.v[j as usize];
-                known[i] = true;
-                old_of_new[i] = Some(j as usize);
-            }
-        }
-        for e in &model.elements {
-            let have: Vec<usize> =
-                e.nodes.iter().map(|&k| k as usize).filter(|&k| known[k]).collect();
-            if have.is_empty() {
-                continue;
-            }
-            let mut du = [0.0; 3];
-            let mut v = [0.0; 3];
-            for &k in &have {
-                for a in 0..3 {
-                    du[a] += (state.x[k][a] - model.rest[k][a]) / have.len() as f64;
-                    v[a] += state.v[k][a] / have.len() as f64;
-                }
-            }
-            for &k in &e.nodes {
-                let k = k as usize;
-                if !known[k] {
-                    state.x[k] = std::array::from_fn(|a| model.rest[k][a] + du[a]);
-                    state.v[k] = v;
-                    known[k] = true;
-                }
-            }
-        }
+        let incise_fem::model::CarriedState { mut state, old_of_new } =
+            self.state.across_cut(old, &model, &changes);
         let origin_of: std::collections::BTreeMap<u32, u32> =
             changes.top.elements_added.iter().filter_map(|&(id, o)| o.map(|o| (id, o))).collect();
         hex.force_field = hex.force_field.remapped(old, &model, |g| origin_of.get(&g).copied());

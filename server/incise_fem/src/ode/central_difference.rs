@@ -8,9 +8,11 @@
 //! estimates it from the rest stiffness and [`CentralDifference::new`] refuses a larger step.
 
 use crate::constraint::FixedNodes;
+use crate::forcefield::ForceField;
 use crate::forcefield::tet::element::TetModel;
 use crate::forcefield::tet::incompressible::Incompressibility;
 use crate::forcefield::tet::tensor_mass::TensorMassForceField;
+use crate::model::Mass;
 use incise_math::Vec3;
 use incise_mesh::TetTopology;
 
@@ -116,8 +118,9 @@ impl CentralDifference {
             .collect()
     }
 
-    /// Advances `x` by one step under the elastic forces of `ff`, the optional penalty, and
-    /// `external` forces (N per vertex; empty = none). Fixed vertices stay where they are.
+    /// Advances `x` by one step under the elastic forces of `ff` as it stands (no adaptive
+    /// update), the optional penalty, and `external` forces (N per vertex; empty = none). Fixed
+    /// vertices stay where they are.
     #[allow(clippy::too_many_arguments)] // the explicit step is these things; a struct adds nothing
     pub fn step(
         &mut self,
@@ -129,15 +132,38 @@ impl CentralDifference {
         external: &[Vec3],
         x: &mut [Vec3],
     ) {
-        let n = x.len();
-        let mut f = if external.is_empty() { vec![[0.0; 3]; n] } else { external.to_vec() };
+        let mut f = forces_from(external, x.len());
         ff.add_forces(model, x, &mut f);
         if let Some(p) = penalty {
             p.add_forces(model, |t| topo.is_alive(t), x, &mut f);
         }
+        self.advance(&model.lumped_mass, &f, fixed, x);
+    }
+
+    /// Advances `x` by one step under the forces of `fields` (each updated at `x` first) and
+    /// `external` forces (N per vertex; empty = none), with `mass`'s lumped masses. Fixed
+    /// vertices stay where they are.
+    pub fn step_fields(
+        &mut self,
+        mass: &dyn Mass,
+        fields: &mut [&mut dyn ForceField],
+        fixed: &FixedNodes,
+        external: &[Vec3],
+        x: &mut [Vec3],
+    ) {
+        let mut f = forces_from(external, x.len());
+        for field in fields.iter_mut() {
+            field.update(x);
+            field.add_forces(x, &mut f);
+        }
+        self.advance(mass.lumped(), &f, fixed, x);
+    }
+
+    /// The central-difference update of `x` under forces `f`.
+    fn advance(&mut self, lumped: &[f64], f: &[Vec3], fixed: &FixedNodes, x: &mut [Vec3]) {
         let (h, h2) = (self.dt, self.dt * self.dt);
-        for i in 0..n {
-            let m = model.lumped_mass[i];
+        for i in 0..x.len() {
+            let m = lumped[i];
             if fixed.is_fixed(i) || m <= 0.0 {
                 self.previous[i] = x[i];
                 continue;
@@ -152,4 +178,9 @@ impl CentralDifference {
             }
         }
     }
+}
+
+/// The external forces as the start of a force vector of `n` vertices.
+fn forces_from(external: &[Vec3], n: usize) -> Vec<Vec3> {
+    if external.is_empty() { vec![[0.0; 3]; n] } else { external.to_vec() }
 }

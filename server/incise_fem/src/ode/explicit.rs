@@ -1,14 +1,15 @@
-//! Explicit integration of the hexahedral model: symplectic Euler with lumped mass, stable
-//! below [`stable_dt`].
+//! Explicit integration: symplectic Euler with lumped mass for any force fields, stable below
+//! [`stable_dt`] for the hexahedral model.
 
 use crate::constraint::FixedNodes;
+use crate::forcefield::ForceField;
 use crate::forcefield::hex::HexForceField;
-use crate::model::{HexModel, Loads, State};
+use crate::model::{HexModel, Loads, Mass, State};
 use crate::ode::static_newton::norm;
 use incise_math::Vec3;
 
-/// One symplectic-Euler step with lumped mass and mass-proportional damping α:
-/// `v += h M⁻¹ (f − αMv)`, `x += h v`.
+/// One symplectic-Euler step of the hexahedral model `model` with its field `ff` alone:
+/// [`explicit_step_fields`] with that one field.
 pub fn explicit_step(
     model: &HexModel,
     ff: &mut HexForceField,
@@ -18,17 +19,34 @@ pub fn explicit_step(
     dt: f64,
     state: &mut State,
 ) {
-    let n = model.node_count();
-    ff.update_rotations(model, &state.x);
+    explicit_step_fields(model, &mut [&mut ff.bind(model)], fixed, loads, alpha, dt, state);
+}
+
+/// One symplectic-Euler step under the forces of `fields` with lumped mass and
+/// mass-proportional damping α: `v += h M⁻¹ (f − αMv)`, `x += h v`.
+pub fn explicit_step_fields(
+    mass: &dyn Mass,
+    fields: &mut [&mut dyn ForceField],
+    fixed: &FixedNodes,
+    loads: &Loads,
+    alpha: f64,
+    dt: f64,
+    state: &mut State,
+) {
+    let lumped = mass.lumped();
+    let n = lumped.len();
     let mut f = vec![[0.0; 3]; n];
-    loads.add_to(model, &mut f);
-    ff.add_forces(model, &state.x, &mut f);
+    loads.add_to(mass, &mut f);
+    for field in fields.iter_mut() {
+        field.update(&state.x);
+        field.add_forces(&state.x, &mut f);
+    }
     for i in 0..n {
-        if fixed.is_fixed(i) || model.lumped_mass[i] <= 0.0 {
+        if fixed.is_fixed(i) || lumped[i] <= 0.0 {
             state.v[i] = [0.0; 3];
             continue;
         }
-        let inv = 1.0 / model.lumped_mass[i];
+        let inv = 1.0 / lumped[i];
         for k in 0..3 {
             state.v[i][k] += dt * (f[i][k] * inv - alpha * state.v[i][k]);
             state.x[i][k] += dt * state.v[i][k];

@@ -17,6 +17,6 @@ pub(crate) mod warm_start;
 pub use crate::linsolve::implicit::REFRESH_COST;
 pub use backward_euler::{BackwardEuler, LinearSolver, MassMatrix, StageTimes};
 pub use central_difference::{CentralDifference, StepTooLarge};
-pub use explicit::{explicit_step, stable_dt};
+pub use explicit::{explicit_step, explicit_step_fields, stable_dt};
 pub use rayleigh::Rayleigh;
 pub use static_newton::{StaticReport, static_solve, static_solve_with};

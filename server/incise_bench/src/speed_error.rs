@@ -472,7 +472,7 @@ fn set_level0_references(
     let reference =
         reference_of(&fine, Formulation::Linear, "linear: centre-of-mass displacement", start)?;
     // The corotational model's thin necks of single voxels fold under the organ's weight:
-    // Newton converges there with the complete tangent (`incise_fem::tangent`).
+    // Newton converges there with the complete tangent (`incise_fem::forcefield::hex::tangent`).
     let start = std::time::Instant::now();
     let corotational = static_answer(&fine, Formulation::Corotational, false);
     match corotational {

@@ -2,7 +2,7 @@
 //!
 //! Code generic over [`Lane`] runs on plain `f64`, or on a vector type whose every operation is
 //! the scalar operation applied lane by lane (a crate with run-time CPU dispatch provides one; see
-//! `incise_fem::kernel`). A lane then gets exactly the bits the scalar code gives it: IEEE
+//! `incise_fem::forcefield::hex::kernel`). A lane then gets exactly the bits the scalar code gives it: IEEE
 //! addition, multiplication, division and square root are correctly rounded either way, and
 //! nothing is fused or reordered. Branches become masks and [`Lane::select`].
 

@@ -20,6 +20,13 @@ use incise_math::mat3::Mat3;
 ///
 /// A field is linearised at the positions of its last [`ForceField::update`]: an integrator calls
 /// it once per step (or Newton iteration) before asking for forces or products.
+///
+/// A field is a view of its model (`HexForceField::bind`, `TensorMassForceField::bind`), made
+/// for a step. A topology change (a cut) happens between steps, on the model and the field that
+/// own the data: the hexahedral field is remapped to the new model, keeping the rotations and
+/// permuted matrices of the elements the cut left alone (`HexForceField::remapped`); the
+/// tensor-mass field subtracts the removed tetrahedra's terms (`TensorMassForceField::remove_tet`);
+/// the state follows (`State::across_cut`); the next step binds the updated field again.
 pub trait ForceField: Sync {
     /// Prepares evaluations at positions `x`: what the Jacobian depends on (element rotations,
     /// which tetrahedra are non-linear) is taken there.

@@ -1,5 +1,5 @@
 //! Preconditioned Bi-CGSTAB (van der Vorst 1992) for the nonsymmetric Newton systems of the
-//! corotational static solve with its full tangent ([`crate::tangent`]). Same interface and
+//! corotational static solve with its full tangent ([`crate::forcefield::hex::tangent`]). Same interface and
 //! stopping rule as [`crate::linsolve::cg::solve`]; dot products in node order, so deterministic.
 
 use crate::constraint::FixedNodes;

@@ -1,5 +1,5 @@
 //! The implicit step's block-Jacobi CG (the same iteration as [`crate::linsolve::cg::solve`]) run by a
-//! [`crate::team`] of two threads in lockstep, for the lumped-mass system `(a·M + b·K) x = rhs`.
+//! [`crate::exec::team`] of two threads in lockstep, for the lumped-mass system `(a·M + b·K) x = rhs`.
 //!
 //! The nodes and the elements are each cut into two fixed parts. The first element pass forms the
 //! step's right-hand side and `A x₀` together ([`Rhs`]). Per iteration:

@@ -7,7 +7,7 @@
 //!   cell's centre for a full cell), by the inversion-safe method of
 //!   `incise_math::rotation` (warm-started from the previous call); forces are
 //!   `f = −R K (Rᵀx − x₀)` and the stiffness used by implicit steps is `R K Rᵀ` per element
-//!   (static Newton adds the rotation's derivative, `crate::tangent`).
+//!   (static Newton adds the rotation's derivative, `crate::forcefield::hex::tangent`).
 
 use crate::exec::Executor;
 use crate::forcefield::hex::kernel::{

@@ -17,7 +17,7 @@
 //! ([`Mat24::mul_vec_symmetric_pair`]), loading each row once for both.
 //!
 //! **Full cells** do not use the dense product at all: their stiffness is sparse in the
-//! Walsh–Hadamard basis of the corners ([`crate::walsh`]), 45 of 576 entries, and that product is
+//! Walsh–Hadamard basis of the corners ([`crate::forcefield::hex::walsh`]), 45 of 576 entries, and that product is
 //! inlined into the element loop (few accumulators, nothing to spill). The dense product serves
 //! partially filled and superimposed cells. B3 at 1 ms: 940 → 1,070 steps/s.
 

@@ -4,7 +4,7 @@
 //! **Why it is sparse.** A full cell of one isotropic material is symmetric under the three
 //! reflections of the box, and the 8-point Walsh–Hadamard transform `Ĥ` (`Ĥ_wc = (−1)^popcount(w&c)`)
 //! of a component's corner values diagonalises those reflections. In that basis the stiffness
-//! `D = Ĥ K Ĥ` (`Ĥ` per component, component-major as in [`crate::kernel`]) couples mode `w` of
+//! `D = Ĥ K Ĥ` (`Ĥ` per component, component-major as in [`crate::forcefield::hex::kernel`]) couples mode `w` of
 //! component `i` only with mode `w ⊕ bᵢ ⊕ bⱼ` of component `j` (`b = 1, 2, 4`, the bit of the axis
 //! the component points along): 45 of its 576 entries are nonzero on B3's cells, instead of a
 //! dense 24×24. So `K v = Ĥ (D/64) Ĥ v` is two transforms per component and three 8-wide

@@ -44,7 +44,9 @@ pub struct SpeedErrorArgs {
     /// `liver`. `b2-moving` is B2 with its pull travelling along the bottom edge (there and back
     /// every 100 ms): each row simulates 2 s from rest, all of it timed, and its
     /// `trajectory_error` is the pulled corner's RMS distance from the same model at dt = 0.1 ms
-    /// (CG to 1e-12), over that reference's peak displacement (docs/benchmarks.md).
+    /// (CG to 1e-12), over that reference's peak displacement (docs/benchmarks.md). Those two
+    /// references, 20,000 steps each, take most of its run (about 50 s each in release on a busy
+    /// 2-core machine).
     #[arg(long, default_value = "all")]
     scene: String,
     /// Skip meshes with more elements than this (quick runs).

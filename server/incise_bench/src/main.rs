@@ -26,8 +26,9 @@ enum Command {
     /// Dynamic Branched Grid report: per-level element and node counts, build time, direct vs
     /// recursive condensation, and a 500-voxel cut stroke updated incrementally vs rebuilt.
     Grid(grid_report::GridArgs),
-    /// Speed against error on scenes B (hanging block), C (cantilever) and the liver, for each
-    /// model, integrator and dt in {1 ms, 10 ms}; table, CSV, JSON and a log-log PNG.
+    /// Speed against error on scenes B (hanging block), B2-moving (the block under a travelling
+    /// pull), C (cantilever) and the liver, for each model, integrator and dt in {1 ms, 10 ms};
+    /// table, CSV, JSON and a log-log PNG.
     SpeedError(speed_error::SpeedErrorArgs),
     /// Paper 2's Table 1 (volume change of a bent cylinder and a pulled liver for the linear,
     /// St Venant-Kirchhoff and SVK + incompressibility tensor-mass models, and corotational

@@ -112,11 +112,30 @@ fn bad_input_gets_a_clear_error() {
     let out = bench().args(["speed-error", "--help"]).output().unwrap();
     assert!(out.status.success());
     let help = String::from_utf8_lossy(&out.stdout);
-    for flag in
-        ["--scene", "--json", "--csv", "--png", "--max-error", "--peers", "--fine-references"]
-    {
+    for flag in [
+        "--scene",
+        "--json",
+        "--csv",
+        "--png",
+        "--max-error",
+        "--peers",
+        "--fine-references",
+        "--richardson-cells",
+        "--no-richardson",
+    ] {
         assert!(help.contains(flag), "speed-error --help lists {flag}:\n{help}");
     }
+    assert!(help.contains("b2-moving"), "speed-error --help names the moving scene:\n{help}");
+
+    // Richardson extrapolation needs the second mesh finer on every axis.
+    let out = bench()
+        .args(["speed-error", "--scene", "b1", "--reference-cells", "11,8,6"])
+        .args(["--richardson-cells", "11,10,8"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--richardson-cells") && err.contains("finer"), "{err}");
 }
 
 #[test]
@@ -150,9 +169,22 @@ fn speed_error_report_writes_table_csv_png_and_json() {
     let rows = j["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 2 * 2 * 2 * 2, "2 meshes x 2 models x 2 integrators x 2 dt");
     for row in rows {
-        for key in ["scene", "model", "dt", "steps_per_s", "error", "stable", "elements", "dofs"] {
+        for key in [
+            "scene",
+            "model",
+            "dt",
+            "steps_per_s",
+            "steps_per_s_one_thread",
+            "error",
+            "error_abs",
+            "trajectory_error",
+            "stable",
+            "elements",
+            "dofs",
+        ] {
             assert!(row.get(key).is_some(), "row lacks {key}: {row}");
         }
+        assert!(row["trajectory_error"].is_null(), "only b2-moving has one: {row}");
     }
     assert!(rows.iter().any(|r| r["stable"] == true && r["steps_per_s"].as_f64().unwrap() > 0.0));
     // Every stable implicit row settles on the static answer of its own mesh and model: the
@@ -188,7 +220,8 @@ fn speed_error_compares_measured_peers_at_equal_error() {
     let out = bench()
         .args(["speed-error", "--scene", "b1", "--steps", "2", "--repeats", "1"])
         // A coarse reference keeps the debug build quick; the comparison logic is the same.
-        .args(["--reference-cells", "11,8,6", "--settle-seconds", "8"])
+        .args(["--reference-cells", "11,8,6", "--richardson-cells", "15,11,8"])
+        .args(["--settle-seconds", "8"])
         .args(["--run-seconds", "0", "--warmup-steps", "1"])
         .args(["--stable-seconds", "0.02", "--json", "--peers"])
         .arg(&table)
@@ -200,6 +233,35 @@ fn speed_error_compares_measured_peers_at_equal_error() {
     assert_eq!(peers.len(), 2);
     let implicit = &peers[0];
     let reference = j["references"]["B1"].as_f64().unwrap();
+    // Scene B's rows are measured against the Richardson extrapolation of the two meshes.
+    let b = &j["references"]["B"];
+    let value = |key: &str| b[key].as_f64().unwrap_or_else(|| panic!("references.B.{key}: {b}"));
+    let (coarse, fine, extrapolated) = (value("coarse"), value("fine"), value("extrapolated"));
+    assert!(extrapolated.is_finite() && extrapolated > 0.0, "{b}");
+    assert_eq!(j["references"]["B1"], b["extrapolated"], "B1's rows use the extrapolation");
+    let r = value("h_ratio");
+    assert!(
+        (r - (0.15 / 11.0) / (10.0 / 1000.0)).abs() < 1e-12,
+        "largest edges 13.6 mm, 10 mm: {b}"
+    );
+    assert!((extrapolated - (fine + (fine - coarse) / (r * r - 1.0))).abs() < 1e-12, "{b}");
+    assert!((value("estimated_error") - (extrapolated - fine).abs()).abs() < 1e-12, "{b}");
+    for row in j["rows"].as_array().unwrap() {
+        if let Some(e) = row["error"].as_f64() {
+            assert_eq!(row["error_abs"], serde_json::json!(e.abs()), "{row}");
+        }
+        let one = &row["steps_per_s_one_thread"];
+        if row["integrator"] == "implicit-euler" && row["stable"] == true {
+            assert!(one.as_f64().unwrap() > 0.0, "one-thread speed of an implicit row: {row}");
+        } else {
+            assert!(one.is_null(), "only implicit rows are timed on one thread: {row}");
+        }
+    }
+    // Signed: some B1 row is off on the soft or the stiff side, not only in size.
+    assert!(
+        j["rows"].as_array().unwrap().iter().any(|r| r["error"].as_f64().is_some_and(|e| e < 0.0))
+    );
+    assert_eq!(j["threads"]["steps_per_s_one_thread"], 1);
     let error = implicit["error"].as_f64().unwrap();
     assert!((error - (reference - 0.0117) / reference).abs() < 1e-4, "{implicit}");
     let ours = &implicit["ours"];
@@ -223,6 +285,63 @@ fn speed_error_compares_measured_peers_at_equal_error() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("mujoco.txt") && err.contains("no rows"), "names file and problem: {err}");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn speed_error_b2_moving_reports_trajectory_errors() {
+    let csv = std::env::temp_dir().join(format!("incise-moving-{}.csv", std::process::id()));
+    let out = bench()
+        .args(["speed-error", "--scene", "b2-moving", "--repeats", "1"])
+        // The protocol's 2 s would take minutes in a debug build; 0.1 s keeps one round trip.
+        .args(["--moving-seconds", "0.1", "--json", "--csv"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    let rows = j["rows"].as_array().unwrap();
+    // Per model: jacobi-cg and cholesky-cg (and the linear model's exact factor) at 1 and 10 ms,
+    // and explicit at 1 ms.
+    assert_eq!(rows.len(), (2 * 2 + 1) + (3 * 2 + 1), "{j}");
+    for r in rows {
+        assert_eq!(r["scene"], "B2-moving");
+        assert_eq!(r["stable"], true, "every row is stable on B2: {r}");
+        let e = r["trajectory_error"].as_f64().unwrap();
+        assert!(e.is_finite() && e >= 0.0, "{r}");
+        assert!(r["error"].is_null(), "a moving block has no settled error: {r}");
+        assert!(r["steps_per_s"].as_f64().unwrap() > 0.0, "{r}");
+        if r["integrator"] == "implicit-euler" {
+            assert!(r["steps_per_s_one_thread"].as_f64().unwrap() > 0.0, "{r}");
+        } else {
+            assert!(r["steps_per_s_one_thread"].is_null(), "{r}");
+        }
+    }
+    // A tenth of the step follows the reference ten times closer or so, whatever the solver.
+    for r in rows.iter().filter(|r| r["integrator"] == "implicit-euler" && r["dt"] == 0.001) {
+        let coarse = rows
+            .iter()
+            .find(|q| q["model"] == r["model"] && q["solver"] == r["solver"] && q["dt"] == 0.01)
+            .unwrap();
+        let (fine, coarse) = (r["trajectory_error"].as_f64(), coarse["trajectory_error"].as_f64());
+        assert!(fine.unwrap() < 0.5 * coarse.unwrap(), "{r}");
+    }
+    let reference = &j["references"]["B2-moving"];
+    assert_eq!(reference["dt"], 1e-4);
+    assert_eq!(reference["cg_tolerance"], 1e-12);
+    for model in ["corotational-hex", "linear-hex"] {
+        let peak = reference["peak_displacement"][model].as_f64().unwrap();
+        assert!(peak > 1e-3 && peak < 0.05, "the corner moves millimetres: {reference}");
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("traj err") && stdout.contains("1T steps/s"), "{stdout}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header = text.lines().next().unwrap();
+    assert!(
+        header.ends_with(",error_abs,trajectory_error,steps_per_s_one_thread"),
+        "new columns at the end: {header}"
+    );
+    assert_eq!(text.lines().count(), 1 + rows.len());
+    std::fs::remove_file(&csv).ok();
 }
 
 #[test]

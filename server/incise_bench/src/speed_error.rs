@@ -1331,6 +1331,116 @@ fn tensor_mass_rows(
                 stable: ok,
             });
         }
+        rows.extend(implicit_tensor_mass_rows(
+            (case, args),
+            (name, kind, error),
+            (&model, &topo, &fixed),
+            (&external, probe),
+        ));
+    }
+    rows
+}
+
+/// Implicit Euler on the tensor-mass block through the same `ForceField` interface as the
+/// hexahedra, at 1 ms and 10 ms with the hexahedral rows' damping (α = 2 /s, β = 0.01 s):
+/// timed like the explicit tensor-mass rows (`--steps` steps from rest), on the report's threads
+/// and on one, its error from its own run settled at rest (the probe moved less than 1e-5 of
+/// itself over two 0.1 s windows, within `--settle-seconds`); `error_static` is the relaxed
+/// static answer's.
+fn implicit_tensor_mass_rows(
+    (case, args): (&Case, &SpeedErrorArgs),
+    (name, kind, error_static): (
+        &'static str,
+        incise_fem::forcefield::tet::Elasticity,
+        Option<f64>,
+    ),
+    (model, topo, fixed): (
+        &incise_fem::forcefield::tet::TetModel,
+        &incise_mesh::TetTopology,
+        &FixedNodes,
+    ),
+    (external, probe): (&[Vec3], usize),
+) -> Vec<Row> {
+    use incise_fem::forcefield::tet::TensorMassForceField;
+    let loads = Loads { gravity: [0.0; 3], nodal: external.to_vec() };
+    let damping = Rayleigh { alpha: 2.0, beta: 0.01 };
+    let settings = CgSettings { tolerance: 1e-6, max_iterations: 30 * model.vertex_count() };
+    let mut fields = [
+        TensorMassForceField::new(model, topo, kind),
+        TensorMassForceField::new(model, topo, kind).with_executor(Executor::single_thread()),
+    ];
+    let displacement = |x: &[Vec3]| {
+        (0..3).map(|a| (x[probe][a] - model.rest[probe][a]).powi(2)).sum::<f64>().sqrt()
+    };
+    let mut rows = Vec::new();
+    for dt in [1e-3, 1e-2] {
+        let mut run = |steps: usize, settle: bool, threads: usize| -> (bool, f64, Option<f64>) {
+            let ff = &mut fields[usize::from(threads == 1)];
+            let mut be = BackwardEuler::new(dt, damping, settings);
+            let mut state =
+                State { x: model.rest.clone(), v: vec![[0.0; 3]; model.vertex_count()] };
+            let window = (0.1 / dt).round().max(1.0) as usize;
+            let mut marks = Vec::new();
+            let start = std::time::Instant::now();
+            let limit = if settle { (args.settle_seconds / dt).ceil() as usize } else { steps };
+            for k in 1..=limit {
+                let mut elastic = ff.bind(model, topo, None);
+                be.step_fields(model, &mut [&mut elastic], fixed, &loads, &mut state);
+                if settle && k % window == 0 {
+                    marks.push(displacement(&state.x));
+                    if let [.., a, b, c] = marks[..]
+                        && (b - a).abs() <= 1e-5 * c.abs()
+                        && (c - b).abs() <= 1e-5 * c.abs()
+                    {
+                        break;
+                    }
+                }
+            }
+            let secs = start.elapsed().as_secs_f64();
+            let finite = state.x.iter().flatten().all(|c| c.is_finite());
+            let settled = settle
+                && marks.len() >= 3
+                && marks[marks.len() - 3..]
+                    .windows(2)
+                    .all(|w| (w[1] - w[0]).abs() <= 1e-5 * w[1].abs());
+            (finite, steps as f64 / secs, settled.then(|| displacement(&state.x)))
+        };
+        let (ok, _, answer) = run(0, true, 2);
+        let mut rates = |threads| -> Vec<f64> {
+            if !ok {
+                return vec![0.0];
+            }
+            let mut r: Vec<f64> =
+                (0..args.repeats.max(1)).map(|_| run(args.steps, false, threads).1).collect();
+            r.sort_by(f64::total_cmp);
+            r
+        };
+        let (rates, one) = (rates(2), rates(1));
+        let error = case.reference.zip(answer).map(|(r, u)| {
+            let e = (u - r) / r.abs();
+            if case.signed { e } else { e.abs() }
+        });
+        rows.push(Row {
+            scene: case.scene.clone(),
+            model: name,
+            integrator: "implicit-euler",
+            solver: "jacobi-cg",
+            resolution: case.resolution.clone(),
+            level: 0,
+            elements: model.tets.len(),
+            dofs: 3 * model.vertex_count(),
+            dt,
+            steps_per_s: rates[rates.len() / 2],
+            steps_per_s_min: rates[0],
+            steps_per_s_max: rates[rates.len() - 1],
+            steps_per_s_one_thread: ok.then(|| one[one.len() / 2]),
+            error,
+            error_abs: error.map(f64::abs),
+            error_static,
+            trajectory_error: None,
+            settled: answer.is_some(),
+            stable: ok,
+        });
     }
     rows
 }

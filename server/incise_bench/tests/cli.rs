@@ -257,6 +257,24 @@ fn speed_error_compares_measured_peers_at_equal_error() {
             assert!(one.is_null(), "only implicit rows are timed on one thread: {row}");
         }
     }
+    // Tensor-mass tetrahedra with implicit Euler: stable at 10 ms (where the explicit scheme is
+    // not), and settled on the same static answer as their relaxation.
+    let tets: Vec<_> = j["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["model"] == "tensor-mass-svk" && r["integrator"] == "implicit-euler")
+        .collect();
+    assert_eq!(tets.len(), 2, "implicit tensor-mass rows at 1 and 10 ms");
+    for r in tets {
+        assert_eq!(
+            (r["stable"].as_bool(), r["settled"].as_bool()),
+            (Some(true), Some(true)),
+            "{r}"
+        );
+        let (e, s) = (r["error"].as_f64().unwrap(), r["error_static"].as_f64().unwrap());
+        assert!((e - s).abs() <= 1e-3 * s.abs(), "{r}");
+    }
     // Signed: some B1 row is off on the soft or the stiff side, not only in size.
     assert!(
         j["rows"].as_array().unwrap().iter().any(|r| r["error"].as_f64().is_some_and(|e| e < 0.0))

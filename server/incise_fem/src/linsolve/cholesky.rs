@@ -2,7 +2,7 @@
 //! of freedom, used as a direct solver or as the preconditioner of CG.
 //!
 //! The sparsity pattern (lower triangle, scalar CSC) and the symbolic factorisation are built once
-//! per topology, in a geometric nested-dissection order of the nodes ([`crate::linsolve::ordering`]); each
+//! per topology, in a geometric nested-dissection order of the nodes (`linsolve::ordering`); each
 //! refresh only scatters the element blocks `R K Rᵀ` through a precomputed map and runs the
 //! numeric factorisation.
 //!

@@ -4,13 +4,13 @@
 //! with our nested-dissection order and supernodal substitutions, in `f64`, or in `f32` as a
 //! preconditioner).
 
-pub mod bicgstab;
+pub(crate) mod bicgstab;
 pub mod cg;
 pub mod cholesky;
 pub(crate) mod implicit;
 pub(crate) mod jacobi;
 pub(crate) mod lockstep_cg;
-pub mod ordering;
+pub(crate) mod ordering;
 mod supernodal;
 
 pub use cg::{CgReport, CgSettings};

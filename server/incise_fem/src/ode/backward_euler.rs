@@ -20,7 +20,7 @@ pub enum LinearSolver {
     /// CG with a block-Jacobi (3×3 per node) preconditioner.
     JacobiCg,
     /// CG preconditioned by a sparse Cholesky factorisation of the system, refactored (with the
-    /// current rotations) when that lowers the average cost per step (see [`REFRESH_COST`]), and
+    /// current rotations) when that lowers the average cost per step (see [`crate::ode::REFRESH_COST`]), and
     /// always when a solve needs more than `refresh_iterations` iterations.
     CholeskyCg {
         /// Iterations above which the factorisation is refreshed for the next step.

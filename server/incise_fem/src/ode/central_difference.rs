@@ -9,9 +9,9 @@
 
 use crate::constraint::FixedNodes;
 use crate::forcefield::ForceField;
+use crate::forcefield::tet::TensorMassForceField;
 use crate::forcefield::tet::element::TetModel;
 use crate::forcefield::tet::incompressible::Incompressibility;
-use crate::forcefield::tet::tensor_mass::TensorMassForceField;
 use crate::model::Mass;
 use incise_math::Vec3;
 use incise_mesh::TetTopology;
@@ -27,8 +27,8 @@ const POWER_ITERATIONS: usize = 100;
 /// stiffen and blow up at 0.5 (after 2,702 steps) but not at 0.35.
 const SAFETY: f64 = 0.5;
 
-/// The stable step (s): [`SAFETY`] times the limit `2/ω_max` of the rest (linear) stiffness of
-/// `ff` with lumped masses.
+/// The stable step (s): a safety factor (0.5) times the limit `2/ω_max` of the rest (linear)
+/// stiffness of `ff` with lumped masses.
 #[must_use]
 pub fn stable_dt(model: &TetModel, ff: &TensorMassForceField, fixed: &FixedNodes) -> f64 {
     let n = model.vertex_count();

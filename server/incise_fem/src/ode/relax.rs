@@ -6,9 +6,9 @@
 //! the slowest, which suits the large-deformation references of paper 2's Table 1.
 
 use crate::constraint::FixedNodes;
+use crate::forcefield::tet::TensorMassForceField;
 use crate::forcefield::tet::element::TetModel;
 use crate::forcefield::tet::incompressible::Incompressibility;
-use crate::forcefield::tet::tensor_mass::TensorMassForceField;
 use crate::ode::CentralDifference;
 use incise_math::Vec3;
 use incise_mesh::TetTopology;

@@ -17,7 +17,7 @@
 //! `[(K u)ₐ]×` and of `P` is `[(Rᵀx)ₐ]×`. The stiffness `−∂f/∂x` is therefore
 //! `R (K + (K P − Q) G) Rᵀ`: `R K Rᵀ` plus a rank-3 term per element, not symmetric in general
 //! (the corotational force is not the gradient of an energy), so the Newton step that uses it
-//! needs a nonsymmetric solver ([`crate::linsolve::bicgstab`]).
+//! needs a nonsymmetric solver (`linsolve::bicgstab`).
 
 use crate::forcefield::hex::{Formulation, HexForceField};
 use crate::model::HexModel;

@@ -2,13 +2,13 @@
 //! conventional element-by-element St Venant-Kirchhoff model that serves as the reference
 //! ([`element`]), the tensor-mass storage of the same model on vertices, edges, triangles and
 //! tetrahedra (eq. 7–10), from which a tetrahedron is removed by subtracting exactly what it added
-//! ([`tensor_mass`]), and the incompressibility penalty (§4, [`incompressible`]). The meshes
+//! ([`TensorMassForceField`]), and the incompressibility penalty (§4, [`incompressible`]). The meshes
 //! themselves are `incise_mesh`'s.
 
 mod elasticity;
 pub mod element;
 pub mod incompressible;
-pub mod tensor_mass;
+mod tensor_mass;
 
 pub use elasticity::TetElasticity;
 pub use element::{Elasticity, Lame, TetMaterial, TetModel};

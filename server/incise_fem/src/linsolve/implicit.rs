@@ -288,29 +288,10 @@ impl SystemSolver {
     ) -> CgReport {
         let apply = |p: &[Vec3], out: &mut [Vec3]| system.apply(p, out);
         let fixed = system.fixed;
-        let Some(hex) = system.hexahedra() else {
-            rhs.assemble(system.fields, assembled);
-            let pre = field_preconditioner(
-                system.fields,
-                rhs.x,
-                &mass_diagonal(system),
-                system.a,
-                system.b,
-            );
-            return solve_against(
-                apply,
-                block_jacobi(&pre),
-                fixed,
-                assembled,
-                dv,
-                settings,
-                rhs.reference,
-            );
-        };
-        let (model, ff) = hex;
+        let hexahedra = system.hexahedra();
         let (a, b) = (system.a, system.b);
-        match &mut self.0 {
-            Kept::JacobiCg { blocks, lockstep } if !system.consistent => {
+        match (&mut self.0, hexahedra) {
+            (Kept::JacobiCg { blocks, lockstep }, Some((model, ff))) if !system.consistent => {
                 // The lockstep solve forms the right-hand side's element terms in its first
                 // element pass, together with `A x₀`.
                 let n = model.node_count();
@@ -335,30 +316,9 @@ impl SystemSolver {
                 jacobi.used += 1;
                 let pre = &jacobi.blocks;
                 let sys = lockstep_cg::System { model, ff, fixed, a, b, pre };
-                let fused = lockstep_cg::Rhs {
-                    x: rhs.x,
-                    v: rhs.v,
-                    node: rhs.node,
-                    h: rhs.h,
-                    s: rhs.s,
-                    reference: rhs.reference,
-                };
-                lockstep_cg::solve(&sys, &fused, dv, settings, lockstep)
+                lockstep_cg::solve(&sys, rhs, dv, settings, lockstep)
             }
-            Kept::JacobiCg { .. } => {
-                rhs.assemble(system.fields, assembled);
-                let pre = preconditioner(model, ff, &mass_diagonal(system), a, b);
-                solve_against(
-                    apply,
-                    block_jacobi(&pre),
-                    fixed,
-                    assembled,
-                    dv,
-                    settings,
-                    rhs.reference,
-                )
-            }
-            Kept::CholeskyCg { refresh_iterations, kept, cycle } => {
+            (Kept::CholeskyCg { refresh_iterations, kept, cycle }, Some(hex)) => {
                 rhs.assemble(system.fields, assembled);
                 // A node fixed or freed by the edit leaves the old factor without a pivot for it.
                 if kept.pattern_stale && !kept.factor.as_ref().is_some_and(|f| f.serves(fixed)) {
@@ -384,19 +344,38 @@ impl SystemSolver {
                     report.iterations > *refresh_iterations || cycle.refresh_pays(REFRESH_COST);
                 report
             }
-            Kept::Cholesky { kept, factored_for } => {
+            (Kept::Cholesky { kept, factored_for }, Some(hex)) => {
                 rhs.assemble(system.fields, assembled);
                 // The linear model's matrix only changes with the step, the damping, the mass
                 // matrix or the topology (which resets the factor): one factorisation serves
                 // every step.
                 let key = Some((a, b, system.consistent));
                 kept.refresh |=
-                    ff.formulation() == Formulation::Corotational || *factored_for != key;
+                    hex.1.formulation() == Formulation::Corotational || *factored_for != key;
                 *factored_for = key;
                 kept.ensure(hex, system, Precision::Double);
                 fixed.project(assembled);
                 kept.factor.as_ref().expect("factorised above").solve(assembled, dv);
                 CgReport { iterations: 1, relative_residual: 0.0, converged: true }
+            }
+            // Block-Jacobi CG through the fields' products: for any fields but one hexahedral
+            // elasticity, and for that one with the consistent mass.
+            _ => {
+                rhs.assemble(system.fields, assembled);
+                let mass = mass_diagonal(system);
+                let pre = match hexahedra {
+                    Some((model, ff)) => preconditioner(model, ff, &mass, a, b),
+                    None => field_preconditioner(system.fields, rhs.x, &mass, a, b),
+                };
+                solve_against(
+                    apply,
+                    block_jacobi(&pre),
+                    fixed,
+                    assembled,
+                    dv,
+                    settings,
+                    rhs.reference,
+                )
             }
         }
     }

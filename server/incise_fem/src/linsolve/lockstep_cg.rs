@@ -20,6 +20,7 @@ use crate::constraint::FixedNodes;
 use crate::exec::team::{self, PARTS};
 use crate::forcefield::hex::HexForceField;
 use crate::linsolve::cg::{CgReport, CgSettings, dot};
+use crate::linsolve::implicit::StepRhs as Rhs;
 use crate::model::HexModel;
 use incise_math::Vec3;
 use incise_math::mat3::{Mat3, mul_vec};
@@ -48,24 +49,6 @@ pub(crate) struct System<'a> {
     pub b: f64,
     /// Inverse diagonal blocks, per node.
     pub pre: &'a [Mat3],
-}
-
-/// An implicit step's right-hand side, `h (node + f(x) − s·K v)` with `f` the elastic forces:
-/// formed in the solve's first element pass together with `A x₀` (one pass over each element's
-/// matrix for both, and the sums over elements on both threads).
-pub(crate) struct Rhs<'a> {
-    /// Positions.
-    pub x: &'a [Vec3],
-    /// Velocities.
-    pub v: &'a [Vec3],
-    /// The node terms (external forces and mass damping).
-    pub node: &'a [Vec3],
-    /// The time step.
-    pub h: f64,
-    /// The stiffness term's factor, `−(β + h)`.
-    pub s: f64,
-    /// CG stops at `‖r‖ ≤ tolerance · max(‖b‖, reference)` (see [`crate::linsolve::cg::solve_against`]).
-    pub reference: f64,
 }
 
 /// The solve's vectors, kept between solves: allocating them per step (about 1.4 MB on scene

@@ -63,21 +63,14 @@ impl Incompressibility {
         p: &[Vec3],
         out: &mut [Vec3],
     ) {
-        for t in (0..model.tets.len()).filter(|&t| live(t)) {
-            let nodes = model.tets[t].map(|n| n as usize);
-            let delta = model.current_volume(t, x) / model.volume[t] - 1.0;
-            let weight = 2.0 * self.kappa * delta.abs() / model.volume[t];
-            if weight == 0.0 {
-                continue;
-            }
-            let g = volume_gradient(&nodes.map(|n| x[n]));
+        self.each_stiffness_term(model, live, x, |nodes, weight, g| {
             let gp: f64 = g.iter().zip(&nodes).map(|(gi, &n)| dot3(gi, &p[n])).sum();
             for (gi, &n) in g.iter().zip(&nodes) {
                 for k in 0..3 {
                     out[n][k] += scale * weight * gp * gi[k];
                 }
             }
-        }
+        });
     }
 
     /// `blocks[n] += K_nn` of [`Self::add_stiffness_times`]'s Jacobian.
@@ -88,20 +81,32 @@ impl Incompressibility {
         x: &[Vec3],
         blocks: &mut [incise_math::mat3::Mat3],
     ) {
-        for t in (0..model.tets.len()).filter(|&t| live(t)) {
-            let nodes = model.tets[t].map(|n| n as usize);
-            let delta = model.current_volume(t, x) / model.volume[t] - 1.0;
-            let weight = 2.0 * self.kappa * delta.abs() / model.volume[t];
-            if weight == 0.0 {
-                continue;
-            }
-            let g = volume_gradient(&nodes.map(|n| x[n]));
+        self.each_stiffness_term(model, live, x, |nodes, weight, g| {
             for (gi, &n) in g.iter().zip(&nodes) {
                 for i in 0..3 {
                     for j in 0..3 {
                         blocks[n][i][j] += weight * gi[i] * gi[j];
                     }
                 }
+            }
+        });
+    }
+
+    /// `term(nodes, 2κ|δ|/V₀, ∇V)` for each live tetrahedron whose volume changed: the
+    /// Gauss–Newton Jacobian is `Σ term · ∇V ∇Vᵀ`.
+    fn each_stiffness_term(
+        self,
+        model: &TetModel,
+        live: impl Fn(usize) -> bool,
+        x: &[Vec3],
+        mut term: impl FnMut([usize; 4], f64, [Vec3; 4]),
+    ) {
+        for t in (0..model.tets.len()).filter(|&t| live(t)) {
+            let nodes = model.tets[t].map(|n| n as usize);
+            let delta = model.current_volume(t, x) / model.volume[t] - 1.0;
+            let weight = 2.0 * self.kappa * delta.abs() / model.volume[t];
+            if weight != 0.0 {
+                term(nodes, weight, volume_gradient(&nodes.map(|n| x[n])));
             }
         }
     }

@@ -8,6 +8,7 @@ pub mod calibration;
 pub mod config;
 #[cfg(test)]
 mod config_fuzz;
+mod regions;
 pub mod simulation;
 
 pub use config::{SceneConfig, SceneError};

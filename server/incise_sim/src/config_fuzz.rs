@@ -104,7 +104,14 @@ fn mutate(text: &str, cases: &mut Cases) -> String {
 /// checked, only that it returns.
 fn build_small(config: &SceneConfig) {
     let Some(volume) = config.procedural_volume() else { return };
-    if volume.dims().iter().product::<usize>() > 2_000 || config.auto_level.is_some() {
+    let auto = matches!(
+        &config.model,
+        crate::config::Model::Hexahedra(crate::config::HexSpec {
+            level: crate::config::Level::Auto(_),
+            ..
+        })
+    );
+    if volume.dims().iter().product::<usize>() > 2_000 || auto {
         return;
     }
     if let Ok(mut sim) = Simulation::new(config, &volume, "fuzz.toml") {

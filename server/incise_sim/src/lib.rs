@@ -12,4 +12,6 @@ mod regions;
 pub mod simulation;
 
 pub use config::{SceneConfig, SceneError};
-pub use simulation::{Frame, InputError, Simulation, StageCounters, StepInputs};
+pub use simulation::{
+    CutError, Frame, Geometry, InputError, Simulation, StageCounters, StepInputs,
+};

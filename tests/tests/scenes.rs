@@ -33,8 +33,8 @@ fn every_committed_scene_builds() {
             (None, None) => unreachable!("a scene is hexahedral or tetrahedral"),
         };
         println!(
-            "{name:<22} level {:?} {elements:>6} elements {nodes:>6} nodes {:>5} fixed",
-            sim.config().level(),
+            "{name:<22} level {:>2} {elements:>6} elements {nodes:>6} nodes {:>5} fixed",
+            sim.config().level().map_or_else(|| "-".to_owned(), |l| l.to_string()),
             sim.fixed().count()
         );
         assert!(sim.fixed().count() > 0, "{name}: nothing is fixed");
@@ -683,4 +683,84 @@ fn an_implicit_step_reports_its_stage_times() {
             "stages within the step: {c:?}"
         );
     }
+}
+
+/// Paper 2's cylinder (r = 1 cm, h = 3 cm) as `deploy/scenes/meshes/cylinder.vtu` holds it: in
+/// millimetres, region 1.
+fn cylinder_in_millimetres() -> incise_mesh::TetMesh {
+    let mesh = incise_mesh::generate::cylinder(0.01, 0.03, 4, 6);
+    let vertices = mesh.vertices().iter().map(|p| p.map(|c| 1000.0 * c)).collect();
+    incise_mesh::TetMesh::new(vertices, mesh.tets().to_vec(), mesh.regions().to_vec()).unwrap()
+}
+
+#[test]
+fn the_committed_cylinder_mesh_is_paper_2s_cylinder_in_millimetres() {
+    let path = scene("meshes/cylinder.vtu");
+    let written = incise_io::encode_vtu(&cylinder_in_millimetres());
+    // `INCISE_WRITE_MESHES=1 cargo test --test scenes` writes the file again.
+    if std::env::var_os("INCISE_WRITE_MESHES").is_some() {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, &written).unwrap();
+    }
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), written);
+}
+
+#[test]
+fn a_tensor_mass_scene_reads_its_tetrahedra_from_a_mesh_file() {
+    let path = scene("cylinder_mesh.toml");
+    let scene_file = incise_scene::read_scene(&path).unwrap();
+    let mesh = scene_file.geometry.mesh().expect("the scene names a mesh file");
+    assert_eq!(mesh, &cylinder_in_millimetres());
+    let text = std::fs::read_to_string(&path).unwrap();
+    for kind in ["explicit", "implicit-euler"] {
+        let config = if kind == "explicit" {
+            scene_file.config.clone()
+        } else {
+            let implicit = text.replace("kind = \"explicit\"", "kind = \"implicit-euler\"");
+            SceneConfig::from_toml(&implicit, "cylinder_mesh.toml").unwrap()
+        };
+        let mut sim = Simulation::new(&config, &scene_file.geometry, "cylinder_mesh.toml").unwrap();
+        let tet = sim.tet().expect("a tensor-mass scene");
+        let (count, limit) = (tet.topology.live_count(), tet.stable_dt);
+        assert_eq!(count, mesh.tets().len());
+        // Read in millimetres, built in metres: the cylinder is 3 cm tall, its base held.
+        let top = tet.model.rest.iter().map(|p| p[2]).fold(f64::NEG_INFINITY, f64::max);
+        assert!((top - 0.03).abs() < 1e-15, "top at {top} m");
+        let held = sim.fixed().count();
+        assert!(held > 0 && held < tet.model.vertex_count());
+        let mut last = None;
+        for _ in 0..100 {
+            last = Some(sim.step(&StepInputs::default()).unwrap());
+        }
+        let last = last.unwrap();
+        let rest = &sim.tet().unwrap().model.rest;
+        let moved = last
+            .positions
+            .iter()
+            .zip(rest)
+            .map(|(p, q)| (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f64>().sqrt())
+            .fold(0.0, f64::max);
+        println!(
+            "{kind}: {count} tetrahedra, {held} held, stable explicit step {limit:.3e} s, moved {:.3} mm",
+            moved * 1e3
+        );
+        assert!(moved > 1e-5 && moved < 0.01, "{kind}: moved {moved:e} m");
+        // No voxels to cut by; tetrahedra are removed by index, with those left hanging.
+        let voxels = incise_grid::GridEdit { remove_voxels: vec![0], sever_links: vec![] };
+        assert_eq!(sim.cut(&voxels), Err(incise_sim::CutError::NoVoxels));
+        assert_eq!(
+            sim.remove_tets(&[count]),
+            Err(incise_sim::CutError::NoSuchTet { tet: count, count })
+        );
+        let removed = sim.remove_tets(&[count - 1, count - 2]).unwrap();
+        assert!(removed.contains(&(count - 1)) && removed.contains(&(count - 2)), "{removed:?}");
+        assert_eq!(sim.tet().unwrap().topology.live_count(), count - removed.len());
+        assert_eq!(sim.remove_tets(&[count - 1]).unwrap(), Vec::<usize>::new());
+        for _ in 0..50 {
+            let frame = sim.step(&StepInputs::default()).unwrap();
+            assert!(frame.positions.iter().flatten().all(|c| c.is_finite()));
+        }
+    }
+    // A hexahedral scene has no tetrahedra to remove.
+    assert_eq!(load("b1.toml").remove_tets(&[0]), Err(incise_sim::CutError::NotTetrahedra));
 }

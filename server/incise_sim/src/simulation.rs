@@ -281,20 +281,19 @@ impl Simulation {
         let (body, fixed) = match (&config.model, geometry) {
             (Model::Hexahedra(hex), Geometry::Volume(raw)) => {
                 let volume = prepared(&hex.volume, raw).map_err(build)?;
-                if let Level::Auto(auto) = hex.level {
-                    // The calibration reads only the scene's holds and loads.
-                    let c = calibrate(&config, &volume, &table, auto, exec)
-                        .map_err(|e| build(format!("model.kind = \"auto\": {e}")))?;
-                    if let Model::Hexahedra(hex) = &mut config.model {
-                        hex.level = Level::Fixed(c.chosen);
+                let level = match hex.level {
+                    Level::Fixed(level) => level,
+                    Level::Auto(auto) => {
+                        // The calibration reads only the scene's holds and loads.
+                        let c = calibrate(&config, &volume, &table, auto, exec)
+                            .map_err(|e| build(format!("model.kind = \"auto\": {e}")))?;
+                        let level = c.chosen;
+                        calibration = Some(c);
+                        level
                     }
-                    calibration = Some(c);
-                }
-                let Model::Hexahedra(hex) = &config.model else {
-                    unreachable!("the model is still hexahedral")
                 };
                 let (body, fixed) =
-                    hex_body(&config, hex, &volume, &table, exec.clone()).map_err(build)?;
+                    hex_body(&config, hex, level, &volume, &table, exec.clone()).map_err(build)?;
                 (Body::Hex(Box::new(body)), fixed)
             }
             (Model::TensorMass(spec), geometry) => {
@@ -335,6 +334,10 @@ impl Simulation {
                 ));
             }
         };
+        // The configuration a simulation reports is the one it runs: at the level chosen.
+        if let (Some(c), Model::Hexahedra(hex)) = (&calibration, &mut config.model) {
+            hex.level = Level::Fixed(c.chosen);
+        }
         let state = match &body {
             Body::Hex(hex) => State::at_rest(&hex.model),
             Body::Tet(tet) => {
@@ -693,17 +696,15 @@ fn in_metres(mesh: &TetMesh, unit: LengthUnit) -> Result<TetMesh, String> {
         .map_err(|e| format!("the mesh in metres: {e}"))
 }
 
-/// Builds the hexahedral mechanics of a scene at its (fixed) level and its fixed nodes.
+/// Builds the hexahedral mechanics of a scene at grid `level` and its fixed nodes.
 fn hex_body(
     config: &SceneConfig,
     hex: &HexSpec,
+    level: u32,
     volume: &LabelVolume,
     table: &MaterialTable,
     exec: Executor,
 ) -> Result<(HexBody, FixedNodes), String> {
-    let Level::Fixed(level) = hex.level else {
-        unreachable!("the level is chosen before the model is built")
-    };
     let grid = BranchedGrid::build(volume, table, level).map_err(|e| e.to_string())?;
     let model = HexModel::from_grid(&grid);
     let force_field = HexForceField::new(&model, hex.formulation).with_executor(exec);

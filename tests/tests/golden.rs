@@ -15,9 +15,8 @@ use incise_tests::scene;
 /// state hash.
 fn hash_after(name: &str, steps: usize) -> u64 {
     let path = scene(name);
-    let (config, volume) =
-        incise_scene::read_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let mut sim = Simulation::new(&config, &volume, &path.display().to_string())
+    let scene = incise_scene::read_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let mut sim = Simulation::new(&scene.config, &scene.geometry, &path.display().to_string())
         .unwrap_or_else(|e| panic!("{name}: {e}"));
     let mut hash = 0;
     for _ in 0..steps {

@@ -141,8 +141,7 @@ pub fn run(args: &CoexistArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.seconds > 0.0, "--seconds must be positive");
     anyhow::ensure!(args.period_us > 0, "--period-us must be positive");
     let path = scene_path(&args.scene, &args.scene_dir);
-    let (config, volume) =
-        incise_scene::read_scene(&path).map_err(|e| anyhow::anyhow!("--scene: {e}"))?;
+    let scene = incise_scene::read_scene(&path).map_err(|e| anyhow::anyhow!("--scene: {e}"))?;
     let period = Duration::from_micros(args.period_us);
     let settings: [(usize, bool); 4] = [(1, false), (1, true), (2, false), (2, true)];
     // Progress as plain lines: a progress bar's ticking thread would wake beside the probe.
@@ -157,8 +156,12 @@ pub fn run(args: &CoexistArgs) -> anyhow::Result<()> {
         );
         let idle = if spin { Idle::DEFAULT_SPIN } else { Idle::Sleep };
         let exec = Executor::new(threads, idle);
-        let mut sim =
-            Simulation::with_executor(&config, &volume, &path.display().to_string(), &exec)?;
+        let mut sim = Simulation::with_executor(
+            &scene.config,
+            &scene.geometry,
+            &path.display().to_string(),
+            &exec,
+        )?;
         rows.push(measure(args.seconds, period, Some((&mut sim, threads, spin)))?);
     }
     println!(

@@ -29,7 +29,7 @@ use incise_fem::ode::{
 };
 use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
 use incise_math::Vec3;
-use incise_sim::config::VolumeSpec;
+use incise_sim::config::{DEFAULT_CG_TOLERANCE, Level, Model, VolumeSpec};
 use incise_sim::{SceneConfig, Simulation};
 use serde::Serialize;
 use std::io::Write;
@@ -245,17 +245,27 @@ fn load_scene(
     voxels: Option<[usize; 3]>,
 ) -> anyhow::Result<(SceneConfig, Simulation, incise_grid::LabelVolume)> {
     let path = args.scene_dir.join(file);
-    let (mut config, mut volume) = incise_scene::read_scene(&path)
+    let incise_scene::Scene { mut config, geometry } = incise_scene::read_scene(&path)
         .with_context(|| format!("reading scene {} (see --scene-dir)", path.display()))?;
+    let Some(mut volume) = geometry.volume().cloned() else {
+        bail!("scene {}: the report measures scenes on a label volume", path.display());
+    };
     if let Some(level) = level {
-        config.level = level;
+        at_level(&mut config, level);
     }
-    if let (Some(cells), VolumeSpec::Block { voxels, .. }) = (voxels, &mut config.volume) {
+    if let (Some(cells), Some(VolumeSpec::Block { voxels, .. })) = (voxels, config.volume_mut()) {
         *voxels = cells;
         volume = config.procedural_volume().expect("a block scene");
     }
     let simulation = Simulation::new(&config, &volume, &path.display().to_string())?;
     Ok((config, simulation, volume))
+}
+
+/// `config` with its hexahedra on grid `level`.
+fn at_level(config: &mut SceneConfig, level: u32) {
+    if let Model::Hexahedra(hex) = &mut config.model {
+        hex.level = Level::Fixed(level);
+    }
 }
 
 /// A case from a built scene.
@@ -267,22 +277,24 @@ fn case_of(
     probe: Probe,
     solvers: Vec<LinearSolver>,
 ) -> anyhow::Result<Case> {
-    let (Some(model), Some(loads)) = (simulation.model(), simulation.loads()) else {
+    let (Some(model), Some(loads), Model::Hexahedra(hex)) =
+        (simulation.model(), simulation.loads(), &config.model)
+    else {
         bail!("scene {name}: the report measures hexahedral scenes");
     };
-    let block = match config.volume {
+    let block = match hex.volume {
         VolumeSpec::Block { size_m, voxels } => Some((size_m, voxels)),
         VolumeSpec::File { .. } => None,
     };
     Ok(Case {
         scene: name.into(),
         resolution,
-        level: config.level,
+        level: simulation.config().level().context("a hexahedral scene runs on a level")?,
         model: model.clone(),
         fixed: simulation.fixed().clone(),
         loads: loads.clone(),
-        damping: Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta },
-        tolerance: config.cg_tolerance,
+        damping: hex.integrator.damping(),
+        tolerance: hex.integrator.cg_tolerance().unwrap_or(DEFAULT_CG_TOLERANCE),
         probe,
         reference: None,
         reference_model: None,
@@ -306,7 +318,9 @@ fn block_case(
     let rest = &simulation.model().expect("a hexahedral scene").rest;
     let dist = |n: usize| (0..3).map(|a| (rest[n][a] - patch.centre[a]).powi(2)).sum::<f64>();
     let nearest = (0..rest.len()).min_by(|&a, &b| dist(a).total_cmp(&dist(b))).expect("nodes");
-    let VolumeSpec::Block { voxels, .. } = config.volume else { bail!("{file}: not a block") };
+    let Some(VolumeSpec::Block { voxels, .. }) = config.volume() else {
+        bail!("{file}: not a block")
+    };
     // Both: Jacobi-CG is the faster when the mass dominates (dt = 1 ms), the Cholesky
     // preconditioner when the stiffness does (dt = 10 ms), until its fill grows too large.
     let mut case = case_of(
@@ -326,10 +340,11 @@ fn block_case(
 fn cantilever_case(args: &SpeedErrorArgs, n: usize) -> anyhow::Result<Case> {
     let file = format!("c_{n}x{}x{}.toml", n / 10, n / 10);
     let (config, simulation, _) = load_scene(args, &file, None, None)?;
-    let VolumeSpec::Block { size_m: [l, w, h], .. } = config.volume else {
+    let Some(&VolumeSpec::Block { size_m: [l, w, h], .. }) = config.volume() else {
         bail!("{file}: scene C is a procedural block")
     };
-    let Some(material) = config.materials.first().map(|m| m.material) else {
+    let Some(material) = config.materials.first().map(incise_sim::config::MaterialSpec::material)
+    else {
         bail!("{file}: no material")
     };
     let rest = &simulation.model().expect("a hexahedral scene").rest;
@@ -359,7 +374,7 @@ fn liver_case(
 ) -> anyhow::Result<Case> {
     let (config, volume, stride) = supported;
     let mut config = config.clone();
-    config.level = level;
+    at_level(&mut config, level);
     let simulation = Simulation::new(&config, volume, &config.name)?;
     case_of(
         name,
@@ -382,14 +397,10 @@ fn supported_volume(
     let (Some(grid), Some(model)) = (simulation.grid(), simulation.model()) else {
         bail!("{file}: the report measures hexahedral scenes")
     };
-    let VolumeSpec::File { path, stride, labels } = config.volume.clone() else {
+    let Some(VolumeSpec::File { path, stride, labels }) = config.volume().cloned() else {
         bail!("{file}: not a file volume")
     };
-    let mut filter = incise_grid::LabelFilter::abdominal_ct();
-    if !labels.is_empty() {
-        filter = filter.keep(&labels);
-    }
-    let strided = raw.filtered(&filter).crop_and_stride(stride)?;
+    let strided = raw.filtered(&labels).crop_and_stride(stride)?;
     let mut of_node: Vec<Vec<usize>> = vec![Vec::new(); model.node_count()];
     for (e, element) in model.elements.iter().enumerate() {
         for &n in &element.nodes {
@@ -432,7 +443,10 @@ fn supported_volume(
         eprintln!("{file}: {dropped} voxels not connected to the hold left out");
     }
     // The volume is already filtered and strided.
-    config.volume = VolumeSpec::File { path, stride: [1; 3], labels: Vec::new() };
+    if let Some(volume) = config.volume_mut() {
+        *volume =
+            VolumeSpec::File { path, stride: [1; 3], labels: incise_grid::LabelFilter::all() };
+    }
     Ok((config, supported, stride))
 }
 

@@ -6,8 +6,8 @@ use incise_sim::{Simulation, StepInputs};
 /// Steps the liver for 0.2 s, cuts it, and steps once more.
 pub fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = std::path::Path::new("deploy/scenes/liver_13k.toml"); // the liver CT, level 3
-    let (config, volume) = incise_scene::read_scene(path)?;
-    let mut sim = Simulation::new(&config, &volume, &path.display().to_string())?;
+    let scene = incise_scene::read_scene(path)?;
+    let mut sim = Simulation::new(&scene.config, &scene.geometry, &path.display().to_string())?;
     for _ in 0..200 {
         sim.step(&StepInputs::default())?; // 1 ms each: the liver sags under gravity
     }

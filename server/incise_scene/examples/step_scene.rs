@@ -9,9 +9,9 @@ fn main() {
     let path = args.get(1).map_or("deploy/scenes/b1.toml", String::as_str);
     let steps: usize = args.get(2).map_or(6000, |s| s.parse().expect("steps"));
     let window: usize = args.get(3).map_or(500, |s| s.parse().expect("window"));
-    let (config, volume) =
-        incise_scene::read_scene(path.as_ref()).unwrap_or_else(|e| panic!("{e}"));
-    let mut sim = Simulation::new(&config, &volume, path).unwrap_or_else(|e| panic!("{e}"));
+    let scene = incise_scene::read_scene(path.as_ref()).unwrap_or_else(|e| panic!("{e}"));
+    let mut sim =
+        Simulation::new(&scene.config, &scene.geometry, path).unwrap_or_else(|e| panic!("{e}"));
     let none = StepInputs::default();
     let (mut iterations, mut residual) = (0usize, 0.0f64);
     let mut start = std::time::Instant::now();

@@ -1,14 +1,15 @@
 //! Scene files from disk: a TOML scene (`incise_sim::SceneConfig`, validated with the key and
-//! line of every error) and the label volume it names, read relative to the scene file's folder
-//! by `incise_io` (procedural volumes are built in memory).
+//! line of every error) and the geometry it names, read relative to the scene file's folder by
+//! `incise_io`: a label volume (procedural volumes are built in memory) or a tetrahedral mesh.
 //!
 //! This is the one place where mechanics configuration meets files, so that `incise_sim` stays
 //! pure and `incise_io` knows only geometry.
 
 use incise_grid::LabelVolume;
 use incise_io::IoError;
-use incise_sim::SceneConfig;
-use incise_sim::config::VolumeSpec;
+use incise_mesh::TetMesh;
+use incise_sim::config::{Model, TetSource, VolumeSpec};
+use incise_sim::{Geometry, SceneConfig};
 use std::path::Path;
 
 /// Why a scene file could not be read.
@@ -25,26 +26,89 @@ pub enum SceneFileError {
     /// The scene file is not a valid scene (the message names the line and key).
     #[error("{0}")]
     Scene(#[from] incise_sim::SceneError),
-    /// The volume the scene names could not be read (the message names that file).
+    /// The volume or mesh the scene names could not be read (the message names that file).
     #[error("{0}")]
     Volume(#[from] IoError),
 }
 
-/// Reads a scene file and its volume.
-pub fn read_scene(path: &Path) -> Result<(SceneConfig, LabelVolume), SceneFileError> {
+/// A scene file as read: its configuration and the geometry it is built on, as the file holds it
+/// (the label filter, stride and mesh unit are applied by [`incise_sim::Simulation::new`]).
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// The checked configuration.
+    pub config: SceneConfig,
+    /// The label volume or tetrahedral mesh it names.
+    pub geometry: SceneGeometry,
+}
+
+/// The geometry a scene file names.
+#[derive(Clone, Debug)]
+pub enum SceneGeometry {
+    /// A label volume (a file's, or a procedural block's).
+    Volume(LabelVolume),
+    /// A tetrahedral mesh (`volume.mesh`).
+    Mesh(TetMesh),
+}
+
+impl<'a> From<&'a SceneGeometry> for Geometry<'a> {
+    fn from(geometry: &'a SceneGeometry) -> Self {
+        match geometry {
+            SceneGeometry::Volume(volume) => Geometry::Volume(volume),
+            SceneGeometry::Mesh(mesh) => Geometry::Mesh(mesh),
+        }
+    }
+}
+
+impl SceneGeometry {
+    /// The label volume (`None` for a mesh).
+    #[must_use]
+    pub fn volume(&self) -> Option<&LabelVolume> {
+        match self {
+            Self::Volume(volume) => Some(volume),
+            Self::Mesh(_) => None,
+        }
+    }
+
+    /// The mesh (`None` for a label volume).
+    #[must_use]
+    pub fn mesh(&self) -> Option<&TetMesh> {
+        match self {
+            Self::Mesh(mesh) => Some(mesh),
+            Self::Volume(_) => None,
+        }
+    }
+}
+
+/// Reads a scene file and the volume or mesh it names.
+pub fn read_scene(path: &Path) -> Result<Scene, SceneFileError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path)
         .map_err(|source| SceneFileError::Read { file: file.clone(), source })?;
     let config = SceneConfig::from_toml(&text, &file)?;
-    let volume = match (&config.volume, config.procedural_volume()) {
-        (_, Some(v)) => v,
-        (VolumeSpec::File { path: rel, .. }, None) => {
-            let base = path.parent().unwrap_or_else(|| Path::new("."));
-            incise_io::read_volume(&base.join(rel))?
-        }
-        (VolumeSpec::Block { .. }, None) => {
-            return Err(IoError::UnknownFormat { file }.into());
-        }
+    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    let geometry = match &config.model {
+        Model::TensorMass(tm) => match &tm.source {
+            TetSource::Mesh(mesh) => {
+                SceneGeometry::Mesh(incise_io::read_tet_mesh(&base.join(&mesh.path))?)
+            }
+            TetSource::Volume { volume, .. } => volume_of(&config, volume, base)?,
+        },
+        Model::Hexahedra(hex) => volume_of(&config, &hex.volume, base)?,
     };
-    Ok((config, volume))
+    Ok(Scene { config, geometry })
+}
+
+/// The label volume `volume` describes: built when procedural, read relative to `base` when a
+/// file.
+fn volume_of(
+    config: &SceneConfig,
+    volume: &VolumeSpec,
+    base: &Path,
+) -> Result<SceneGeometry, IoError> {
+    Ok(SceneGeometry::Volume(match volume {
+        VolumeSpec::File { path, .. } => incise_io::read_volume(&base.join(path))?,
+        VolumeSpec::Block { .. } => {
+            config.procedural_volume().expect("a block is a procedural volume")
+        }
+    }))
 }

@@ -11,7 +11,7 @@
 
 use crate::SceneConfig;
 use crate::config::AutoLevel;
-use crate::simulation::{fixed_nodes, patch_loads};
+use crate::regions::{fixed_nodes, patch_loads};
 use incise_fem::ode::static_solve_with;
 use incise_fem::{Executor, Formulation, HexForceField, HexModel};
 use incise_grid::{BranchedGrid, LabelVolume, MaterialTable};

@@ -8,12 +8,13 @@
 
 use crate::{SceneConfig, SceneError, Simulation, StepInputs};
 
-const SCENES: [(&str, &str); 5] = [
+const SCENES: [(&str, &str); 6] = [
     ("b1.toml", include_str!("../../../deploy/scenes/b1.toml")),
     ("c_10x1x1.toml", include_str!("../../../deploy/scenes/c_10x1x1.toml")),
     ("liver_13k.toml", include_str!("../../../deploy/scenes/liver_13k.toml")),
     ("liver_auto.toml", include_str!("../../../deploy/scenes/liver_auto.toml")),
     ("liver_tensor_mass.toml", include_str!("../../../deploy/scenes/liver_tensor_mass.toml")),
+    ("cylinder_mesh.toml", include_str!("../../../deploy/scenes/cylinder_mesh.toml")),
 ];
 
 const NUMBERS: [&str; 14] = [
@@ -33,7 +34,7 @@ const NUMBERS: [&str; 14] = [
     "\"x\"",
 ];
 
-const WORDS: [&str; 10] = [
+const WORDS: [&str; 12] = [
     "\"\"",
     "\"static\"",
     "\"explicit\"",
@@ -42,6 +43,8 @@ const WORDS: [&str; 10] = [
     "\"cholesky\"",
     "\"consistent\"",
     "\"x\"",
+    "\"mm\"",
+    "\"sleep\"",
     "1",
     "[1, 2]",
 ];
@@ -104,7 +107,14 @@ fn mutate(text: &str, cases: &mut Cases) -> String {
 /// checked, only that it returns.
 fn build_small(config: &SceneConfig) {
     let Some(volume) = config.procedural_volume() else { return };
-    if volume.dims().iter().product::<usize>() > 2_000 || config.auto_level.is_some() {
+    let auto = matches!(
+        &config.model,
+        crate::config::Model::Hexahedra(crate::config::HexSpec {
+            level: crate::config::Level::Auto(_),
+            ..
+        })
+    );
+    if volume.dims().iter().product::<usize>() > 2_000 || auto {
         return;
     }
     if let Ok(mut sim) = Simulation::new(config, &volume, "fuzz.toml") {

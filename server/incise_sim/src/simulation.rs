@@ -1,11 +1,16 @@
 //! The simulation loop of one scene, advanced one step per call: either the branched grid at the
 //! configured level with the hexahedral model, force field and integrator, or (with
-//! `model.kind = "tensor-mass"`) the tetrahedralised volume with paper 2's tensor-mass model and
-//! its explicit integrator. Fixed regions and loads apply to either.
+//! `model.kind = "tensor-mass"`) the tetrahedralised volume or a mesh read from a file with paper
+//! 2's tensor-mass model and its integrator. Fixed regions and loads apply to either.
 
 use crate::calibration::{Calibration, calibrate};
 use crate::config::{
-    FixedSpec, IntegratorKind, ModelKind, SceneConfig, SceneError, TensorMassSpec, VolumeSpec,
+    DEFAULT_CG_TOLERANCE, HexSpec, Integrator, LengthUnit, Level, Model, SceneConfig, SceneError,
+    StaticSolver, TensorMassSpec, TetIntegrator, TetSource, VolumeSpec,
+};
+use crate::regions::{
+    empty_region_hold, fixed_at, fixed_nodes, missing_label_holds, patch_forces, patch_loads,
+    spread_patches,
 };
 use incise_fem::forcefield::tet::element::Fibre;
 use incise_fem::forcefield::tet::incompressible::Incompressibility;
@@ -13,11 +18,9 @@ use incise_fem::forcefield::tet::{Lame, TensorMassForceField, TetMaterial, TetMo
 use incise_fem::linsolve::cg::CgSettings;
 use incise_fem::model::{Loads, State};
 use incise_fem::ode::central_difference::CentralDifference;
-use incise_fem::ode::{BackwardEuler, Rayleigh, explicit_step, stable_dt, static_solve_with};
-use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel};
-use incise_grid::{
-    BranchedGrid, EditError, GridChanges, GridEdit, LabelFilter, LabelVolume, MaterialTable,
-};
+use incise_fem::ode::{BackwardEuler, explicit_step, stable_dt, static_solve_with};
+use incise_fem::{Executor, FixedNodes, HexForceField, HexModel};
+use incise_grid::{BranchedGrid, EditError, GridChanges, GridEdit, LabelVolume, MaterialTable};
 use incise_math::Vec3;
 use incise_mesh::{TetMesh, TetTopology};
 use std::time::Instant;
@@ -99,7 +102,55 @@ pub struct Frame {
     pub counters: StageCounters,
 }
 
-enum Integrator {
+/// What a scene is built on: a label volume as read (the scene's label filter and stride are
+/// applied when it is built) or a tetrahedral mesh as read (in the unit of `volume.unit`).
+#[derive(Clone, Copy, Debug)]
+pub enum Geometry<'a> {
+    /// For a hexahedral scene, or a tensor-mass scene generated from a volume.
+    Volume(&'a LabelVolume),
+    /// For a tensor-mass scene read from a mesh file (`volume.mesh`).
+    Mesh(&'a TetMesh),
+}
+
+impl<'a> From<&'a LabelVolume> for Geometry<'a> {
+    fn from(volume: &'a LabelVolume) -> Self {
+        Self::Volume(volume)
+    }
+}
+
+impl<'a> From<&'a TetMesh> for Geometry<'a> {
+    fn from(mesh: &'a TetMesh) -> Self {
+        Self::Mesh(mesh)
+    }
+}
+
+/// A cut [`Simulation::cut`] or [`Simulation::remove_tets`] refused; nothing was removed.
+#[derive(Debug, thiserror::Error, Clone, PartialEq, Eq)]
+pub enum CutError {
+    /// The edit names a voxel or link the volume does not have.
+    #[error(transparent)]
+    Edit(#[from] EditError),
+    /// Voxels were named in a scene whose tetrahedra were read from a mesh file.
+    #[error(
+        "the scene's tetrahedra were read from a mesh file and are no voxels' cells; remove them by index (`Simulation::remove_tets`)"
+    )]
+    NoVoxels,
+    /// Tetrahedra were named in a hexahedral scene.
+    #[error(
+        "the scene is hexahedral: it has no tetrahedra to remove; cut its grid (`Simulation::cut`)"
+    )]
+    NotTetrahedra,
+    /// A tetrahedron the mesh does not have.
+    #[error("tetrahedron {tet} does not exist (the mesh has {count})")]
+    NoSuchTet {
+        /// The index given.
+        tet: usize,
+        /// Tetrahedra in the mesh (live or removed).
+        count: usize,
+    },
+}
+
+enum HexStepper {
     Implicit(Box<BackwardEuler>),
     /// `stable_dt`: the mesh's explicit stability limit (s), re-estimated after every cut;
     /// `substeps`: explicit steps per frame, `⌈dt / stable_dt⌉` (1 until a cut lowers the limit
@@ -124,12 +175,12 @@ struct HexBody {
     model: HexModel,
     force_field: HexForceField,
     loads: Loads,
-    integrator: Integrator,
+    stepper: HexStepper,
 }
 
 /// The tensor-mass mechanics of a scene (`model.kind = "tensor-mass"`).
 pub struct TetBody {
-    /// The tetrahedralised volume (6 tetrahedra per grid cell).
+    /// The tetrahedra: 6 per grid cell of the volume, or as read from the mesh file (in metres).
     pub mesh: TetMesh,
     /// Rest data per tetrahedron.
     pub model: TetModel,
@@ -142,17 +193,25 @@ pub struct TetBody {
     /// The largest stable explicit step of the mesh and material (s); with the explicit
     /// integrator the scene's dt is at most this.
     pub stable_dt: f64,
-    /// Grid cell (at the scene's level) of each group of 6 tetrahedra.
-    cells: Vec<[usize; 3]>,
-    /// Voxels per axis of the (filtered, strided) volume.
-    voxel_dims: [usize; 3],
+    /// The volume's cells the tetrahedra were generated from (`None` for a mesh file).
+    cells: Option<VoxelCells>,
     /// Gravity on the lumped masses plus the patch loads, as per-vertex forces.
     loads: Loads,
-    integrator: TetIntegrator,
+    stepper: TetStepper,
+}
+
+/// The cells of a generated mesh: how a cut by voxels finds its tetrahedra.
+struct VoxelCells {
+    /// Grid cell (at `level`) of each group of 6 tetrahedra.
+    cells: Vec<[usize; 3]>,
+    /// The grid level of the cells.
+    level: u32,
+    /// The volume (filtered, strided) they were generated from.
+    volume: LabelVolume,
 }
 
 /// How a tensor-mass scene steps.
-enum TetIntegrator {
+enum TetStepper {
     /// Paper 2's central differences.
     Explicit(CentralDifference),
     /// Linearised backward Euler through the same force-field interface as the hexahedra.
@@ -187,264 +246,105 @@ fn fnv(state: &State) -> u64 {
     h
 }
 
-impl SceneConfig {
-    /// The scene's volume when it is procedural (`None` for a file, which the caller reads).
-    #[must_use]
-    pub fn procedural_volume(&self) -> Option<LabelVolume> {
-        match &self.volume {
-            VolumeSpec::Block { size_m, voxels } => {
-                let spacing = std::array::from_fn(|a| size_m[a] / voxels[a] as f64);
-                Some(incise_grid::procedural::from_fn(*voxels, spacing, |_, _, _| {
-                    incise_grid::procedural::TISSUE
-                }))
-            }
-            VolumeSpec::File { .. } => None,
-        }
-    }
-}
-
-/// The nodes of the scene's fixed regions.
-pub(crate) fn fixed_nodes(
-    config: &SceneConfig,
-    grid: &BranchedGrid,
-    model: &HexModel,
-) -> FixedNodes {
-    // Only a label hold reads the labels (a copy of the fine level: not on every cut otherwise).
-    fixed_at(config, &model.rest, grid.element_size(), |label| {
-        let labels = grid.fine_labels();
-        model
-            .elements
-            .iter()
-            .filter(|e| grid.element_voxels(e.grid_id).iter().any(|&v| labels[v as usize] == label))
-            .flat_map(|e| e.nodes.iter().map(|&n| n as usize))
-            .collect()
-    })
-}
-
-/// The nodes at `rest` in the scene's fixed regions (`size`: the element size, for tolerances;
-/// `held(label)`: the nodes of the elements holding a voxel with `label`).
-fn fixed_at(
-    config: &SceneConfig,
-    rest: &[Vec3],
-    size: Vec3,
-    held: impl Fn(u16) -> Vec<usize>,
-) -> FixedNodes {
-    let tolerance = 1e-9 * size.iter().copied().fold(0.0, f64::max);
-    let mut fixed = FixedNodes::none(rest.len());
-    for f in &config.fixed {
-        let region = match f {
-            FixedSpec::Plane { axis, value } => FixedNodes::plane(rest, *axis, *value, tolerance),
-            FixedSpec::Box { min, max } => FixedNodes::aabb(rest, *min, *max),
-            FixedSpec::Label { label } => FixedNodes::from_list(rest.len(), &held(*label)),
-        };
-        fixed = fixed.union(&region);
-    }
-    fixed
-}
-
-/// The first plane or box hold that holds no node at `rest` (a mistyped coordinate would leave
-/// the body free without a word).
-fn empty_region_hold(config: &SceneConfig, rest: &[Vec3], size: Vec3) -> Option<String> {
-    let tolerance = 1e-9 * size.iter().copied().fold(0.0, f64::max);
-    let extent = |a: usize| {
-        rest.iter()
-            .map(|p| p[a])
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), c| (lo.min(c), hi.max(c)))
-    };
-    config.fixed.iter().enumerate().find_map(|(k, f)| match f {
-        FixedSpec::Plane { axis, value } => {
-            (FixedNodes::plane(rest, *axis, *value, tolerance).count() == 0).then(|| {
-                let (lo, hi) = extent(*axis);
-                format!(
-                    "fixed[{k}]: no node lies on the plane {} = {value} (the nodes span {lo} … {hi} m)",
-                    ["x", "y", "z"][*axis]
-                )
-            })
-        }
-        FixedSpec::Box { min, max } => (FixedNodes::aabb(rest, *min, *max).count() == 0)
-            .then(|| format!("fixed[{k}]: no node lies in the box {min:?} … {max:?}")),
-        FixedSpec::Label { .. } => None,
-    })
-}
-
-/// The labels a scene holds by (`[[fixed]] label`) that no voxel of its model carries: a hold
-/// that would hold nothing is an error when the scene is built.
-fn missing_label_holds(config: &SceneConfig, present: impl Fn(u16) -> bool) -> Option<String> {
-    config.fixed.iter().enumerate().find_map(|(k, f)| match f {
-        FixedSpec::Label { label } if !present(*label) => {
-            Some(format!("fixed[{k}].label: no voxel of the volume has label {label}"))
-        }
-        _ => None,
-    })
-}
-
-/// Gravity plus the scene's patch loads spread over the model's nodes.
-pub(crate) fn patch_loads(config: &SceneConfig, model: &HexModel) -> Result<Loads, String> {
-    Ok(Loads { gravity: config.gravity, nodal: patch_forces(config, &model.rest)? })
-}
-
-/// The scene's patch loads spread over the nodes at `rest` (N per node); an error names the
-/// first patch that holds no node.
-fn patch_forces(config: &SceneConfig, rest: &[Vec3]) -> Result<Vec<Vec3>, String> {
-    match spread_patches(config, rest) {
-        (nodal, None) => Ok(nodal),
-        (_, Some(k)) => {
-            let load = &config.loads[k];
-            Err(format!("loads[{k}]: no node lies within {} m of {:?}", load.radius, load.centre))
-        }
-    }
-}
-
-/// Every patch load spread over the nodes at `rest` (N per node), and the first patch that holds
-/// no node (it adds nothing).
-fn spread_patches(config: &SceneConfig, rest: &[Vec3]) -> (Vec<Vec3>, Option<usize>) {
-    let mut loads = Loads { gravity: [0.0; 3], nodal: vec![[0.0; 3]; rest.len()] };
-    let mut empty = None;
-    for (k, load) in config.loads.iter().enumerate() {
-        if loads.add_patch(rest, load.centre, load.radius, load.force) == 0 {
-            empty = empty.or(Some(k));
-        }
-    }
-    (loads.nodal, empty)
-}
-
 impl Simulation {
-    /// Builds the scene on `volume` (from [`SceneConfig::procedural_volume`] or a file). Only what
-    /// the scene uses is built: the grid at its level, the model, the chosen integrator. It runs
-    /// on an executor of its own with the default settings, which the environment variables
-    /// `INCISE_THREADS` and `INCISE_LINGER_US` may override ([`Executor::configured`]).
-    pub fn new(config: &SceneConfig, volume: &LabelVolume, file: &str) -> Result<Self, SceneError> {
-        Self::with_executor(config, volume, file, &Executor::configured(None, None))
+    /// Builds the scene on its geometry as read: the label volume (from
+    /// [`SceneConfig::procedural_volume`] or a file, before the scene's label filter and stride)
+    /// or the tetrahedral mesh of `volume.mesh` (in the file's unit). Only what the scene uses is
+    /// built: the grid at its level or the tetrahedra, the model, the chosen integrator. It runs
+    /// on an executor of its own with the scene's `[exec]` settings, which the environment
+    /// variables `INCISE_THREADS` and `INCISE_LINGER_US` override ([`Executor::configured`]).
+    pub fn new<'a>(
+        config: &SceneConfig,
+        geometry: impl Into<Geometry<'a>>,
+        file: &str,
+    ) -> Result<Self, SceneError> {
+        Self::with_executor(config, geometry, file, &config.exec.executor())
     }
 
-    /// [`Self::new`] on the given executor: every element loop and solve of this simulation runs
-    /// on its threads, and nothing else is shared with another simulation unless it is given a
-    /// clone of the same executor.
-    pub fn with_executor(
+    /// [`Self::new`] on the given executor (the scene's `[exec]` keys are then not used): every
+    /// element loop and solve of this simulation runs on its threads, and nothing else is shared
+    /// with another simulation unless it is given a clone of the same executor.
+    pub fn with_executor<'a>(
         config: &SceneConfig,
-        volume: &LabelVolume,
+        geometry: impl Into<Geometry<'a>>,
         file: &str,
         exec: &Executor,
     ) -> Result<Self, SceneError> {
         let build = |message: String| SceneError::Build { file: file.to_owned(), message };
-        let volume = match &config.volume {
-            VolumeSpec::File { stride, labels, .. } => {
-                let mut filter = LabelFilter::abdominal_ct();
-                if !labels.is_empty() {
-                    filter = filter.keep(labels);
-                }
-                volume
-                    .filtered(&filter)
-                    .crop_and_stride(*stride)
-                    .map_err(|e| build(e.to_string()))?
-            }
-            VolumeSpec::Block { .. } => volume.clone(),
-        };
-        // A config built in code skips the file's checks of what the mechanics ignores.
-        if config.integrator == IntegratorKind::Explicit && config.rayleigh_beta != 0.0 {
-            return Err(build(format!(
-                "integrator.rayleigh_beta = {} does not apply to the explicit integrator (only rayleigh_alpha does)",
-                config.rayleigh_beta
-            )));
-        }
-        if let Some(m) = config
-            .materials
-            .iter()
-            .find(|m| m.material.rayleigh_mass != 0.0 || m.material.rayleigh_stiffness != 0.0)
-        {
-            return Err(build(format!(
-                "label {}: per-material damping is not supported; set integrator.rayleigh_alpha and rayleigh_beta",
-                m.label
-            )));
-        }
+        let geometry = geometry.into();
         let mut table = MaterialTable::new();
         for m in &config.materials {
-            table.insert(m.label, m.material);
+            table.insert(m.label, m.material());
         }
         let mut config = config.clone();
-        let calibration = match config.auto_level {
-            Some(auto) => {
-                let c = calibrate(&config, &volume, &table, auto, exec)
-                    .map_err(|e| build(format!("model.kind = \"auto\": {e}")))?;
-                config.level = c.chosen;
-                Some(c)
+        let mut calibration = None;
+        let (body, fixed) = match (&config.model, geometry) {
+            (Model::Hexahedra(hex), Geometry::Volume(raw)) => {
+                let volume = prepared(&hex.volume, raw).map_err(build)?;
+                let level = match hex.level {
+                    Level::Fixed(level) => level,
+                    Level::Auto(auto) => {
+                        // The calibration reads only the scene's holds and loads.
+                        let c = calibrate(&config, &volume, &table, auto, exec)
+                            .map_err(|e| build(format!("model.kind = \"auto\": {e}")))?;
+                        let level = c.chosen;
+                        calibration = Some(c);
+                        level
+                    }
+                };
+                let (body, fixed) =
+                    hex_body(&config, hex, level, &volume, &table, exec.clone()).map_err(build)?;
+                (Body::Hex(Box::new(body)), fixed)
             }
-            None => None,
+            (Model::TensorMass(spec), geometry) => {
+                let (mesh, cells) = match (&spec.source, geometry) {
+                    (TetSource::Volume { volume, level }, Geometry::Volume(raw)) => {
+                        let volume = prepared(volume, raw).map_err(build)?;
+                        let (mesh, cells) =
+                            incise_mesh::generate::from_volume_with_cells(&volume, *level)
+                                .map_err(|e| {
+                                    build(format!(
+                                        "tetrahedralising the volume at level {level}: {e}"
+                                    ))
+                                })?;
+                        (mesh, Some(VoxelCells { cells, level: *level, volume }))
+                    }
+                    (TetSource::Mesh(spec), Geometry::Mesh(mesh)) => {
+                        (in_metres(mesh, spec.unit).map_err(build)?, None)
+                    }
+                    (TetSource::Volume { .. }, Geometry::Mesh(_)) => {
+                        return Err(build(
+                            "the scene generates its tetrahedra from a label volume, and was given a mesh".into(),
+                        ));
+                    }
+                    (TetSource::Mesh(m), Geometry::Volume(_)) => {
+                        return Err(build(format!(
+                            "the scene reads its tetrahedra from the mesh file {}, and was given a label volume",
+                            m.path
+                        )));
+                    }
+                };
+                let (body, fixed) =
+                    tet_body(&config, spec, mesh, cells, &table, exec.clone()).map_err(build)?;
+                (Body::Tet(Box::new(body)), fixed)
+            }
+            (Model::Hexahedra(_), Geometry::Mesh(_)) => {
+                return Err(build(
+                    "hexahedra are built on a label volume, and the scene was given a mesh".into(),
+                ));
+            }
         };
-        let config = &config;
-        if let (ModelKind::TensorMass, Some(spec)) = (config.model, config.tensor_mass) {
-            let (body, fixed) =
-                tet_body(config, &spec, &volume, &table, exec.clone()).map_err(build)?;
-            let state =
-                State { x: body.model.rest.clone(), v: vec![[0.0; 3]; body.model.vertex_count()] };
-            return Ok(Self {
-                config: config.clone(),
-                calibration,
-                body: Body::Tet(Box::new(body)),
-                fixed,
-                state,
-                index: 0,
-            });
+        // The configuration a simulation reports is the one it runs: at the level chosen.
+        if let (Some(c), Model::Hexahedra(hex)) = (&calibration, &mut config.model) {
+            hex.level = Level::Fixed(c.chosen);
         }
-        let grid =
-            BranchedGrid::build(&volume, &table, config.level).map_err(|e| build(e.to_string()))?;
-        let model = HexModel::from_grid(&grid);
-        let formulation = match config.model {
-            ModelKind::Linear => Formulation::Linear,
-            ModelKind::Corotational | ModelKind::TensorMass => Formulation::Corotational,
-        };
-        let force_field = HexForceField::new(&model, formulation).with_executor(exec.clone());
-        if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l))
-            .or_else(|| empty_region_hold(config, &model.rest, grid.element_size()))
-        {
-            return Err(build(message));
-        }
-        let fixed = fixed_nodes(config, &grid, &model);
-        let loads = patch_loads(config, &model).map_err(build)?;
-        let damping = Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta };
-        let integrator = match config.integrator {
-            IntegratorKind::ImplicitEuler => {
-                let mut be = BackwardEuler::with_solver(
-                    config.dt,
-                    damping,
-                    CgSettings {
-                        tolerance: config.cg_tolerance,
-                        max_iterations: 10 * model.dof_count().max(100),
-                    },
-                    config.solver,
-                );
-                be.mass = config.mass;
-                Integrator::Implicit(Box::new(be))
+        let state = match &body {
+            Body::Hex(hex) => State::at_rest(&hex.model),
+            Body::Tet(tet) => {
+                State { x: tet.model.rest.clone(), v: vec![[0.0; 3]; tet.model.vertex_count()] }
             }
-            IntegratorKind::Explicit => {
-                let limit = stable_dt(&model, &force_field, &fixed);
-                if config.dt > limit {
-                    return Err(build(format!(
-                        "integrator.dt = {} s is above the explicit stability limit {limit:.3e} s of this mesh; use a smaller dt or the implicit integrator",
-                        config.dt
-                    )));
-                }
-                Integrator::Explicit {
-                    dt: config.dt,
-                    alpha: config.rayleigh_alpha,
-                    stable_dt: limit,
-                    substeps: 1,
-                }
-            }
-            IntegratorKind::Static => Integrator::Static {
-                tolerance: config.cg_tolerance,
-                cholesky: config.solver != incise_fem::ode::LinearSolver::JacobiCg,
-            },
         };
-        let state = State::at_rest(&model);
-        Ok(Self {
-            config: config.clone(),
-            calibration,
-            body: Body::Hex(Box::new(HexBody { grid, model, force_field, loads, integrator })),
-            fixed,
-            state,
-            index: 0,
-        })
+        Ok(Self { config, calibration, body, fixed, state, index: 0 })
     }
 
     /// Advances one step, driven by `inputs`; refuses them (and takes no step) if a force is
@@ -477,12 +377,12 @@ impl Simulation {
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
             Body::Tet(tet) => {
-                let TetBody { model, topology, force_field, penalty, loads, integrator, .. } =
+                let TetBody { model, topology, force_field, penalty, loads, stepper, .. } =
                     &mut **tet;
                 let external = with_inputs(&loads.nodal);
                 let mut elastic = force_field.bind(model, topology, penalty.as_ref());
-                match integrator {
-                    TetIntegrator::Explicit(cd) => {
+                match stepper {
+                    TetStepper::Explicit(cd) => {
                         cd.step_fields(
                             model,
                             &mut [&mut elastic],
@@ -492,7 +392,7 @@ impl Simulation {
                         );
                         self.state.v = cd.velocities(&self.state.x);
                     }
-                    TetIntegrator::Implicit(be) => {
+                    TetStepper::Implicit(be) => {
                         let driven = external.map(|nodal| Loads { gravity: [0.0; 3], nodal });
                         let r = be.step_fields(
                             model,
@@ -512,8 +412,8 @@ impl Simulation {
         let driven =
             with_inputs(&hex.loads.nodal).map(|nodal| Loads { gravity: hex.loads.gravity, nodal });
         let loads = driven.as_ref().unwrap_or(&hex.loads);
-        match &mut hex.integrator {
-            Integrator::Implicit(be) => {
+        match &mut hex.stepper {
+            HexStepper::Implicit(be) => {
                 let r =
                     be.step(&hex.model, &mut hex.force_field, &self.fixed, loads, &mut self.state);
                 counters.solver_iterations = r.iterations;
@@ -522,7 +422,7 @@ impl Simulation {
                 (counters.rotations_ns, counters.solve_ns, counters.update_ns) =
                     (t.rotations_ns, t.solve_ns, t.update_ns);
             }
-            Integrator::Explicit { dt, alpha, substeps, .. } => {
+            HexStepper::Explicit { dt, alpha, substeps, .. } => {
                 for _ in 0..*substeps {
                     explicit_step(
                         &hex.model,
@@ -536,7 +436,7 @@ impl Simulation {
                 }
                 counters.substeps = *substeps;
             }
-            Integrator::Static { tolerance, cholesky } => {
+            HexStepper::Static { tolerance, cholesky } => {
                 let r = static_solve_with(
                     &hex.model,
                     &mut hex.force_field,
@@ -559,7 +459,7 @@ impl Simulation {
         counters.step_ns = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
         Frame {
             index: self.index,
-            time: self.index as f64 * self.config.dt,
+            time: self.index as f64 * self.config.dt(),
             positions: self.state.x.clone(),
             state_hash: fnv(&self.state),
             counters,
@@ -575,12 +475,14 @@ impl Simulation {
     ///
     /// In a tensor-mass scene there is no grid: the tetrahedra of every cell holding a removed
     /// voxel are removed (their stiffness subtracted, paper 2 §3.2), severed links are not
-    /// supported there, and the change list returned is empty (see [`Simulation::tet`]).
-    pub fn cut(&mut self, edit: &GridEdit) -> Result<GridChanges, EditError> {
+    /// supported there, and the change list returned is empty (see [`Simulation::tet`]). A mesh
+    /// read from a file has no voxels: naming any is [`CutError::NoVoxels`] (see
+    /// [`Simulation::remove_tets`]).
+    pub fn cut(&mut self, edit: &GridEdit) -> Result<GridChanges, CutError> {
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
             Body::Tet(tet) => {
-                remove_voxel_cells(tet, &self.config, edit)?;
+                remove_voxel_cells(tet, edit)?;
                 return Ok(GridChanges::default());
             }
         };
@@ -604,24 +506,42 @@ impl Simulation {
         // A patch that lost all its nodes simply stops pulling; the others keep pulling.
         let (nodal, _) = spread_patches(&self.config, &model.rest);
         hex.loads = Loads { gravity: self.config.gravity, nodal };
-        match &mut hex.integrator {
-            Integrator::Implicit(be) => be.remap_warm_start(&old_of_new),
+        match &mut hex.stepper {
+            HexStepper::Implicit(be) => be.remap_warm_start(&old_of_new),
             // Cut cells hold less mass and the cut mesh's limit may fall below dt: rather than
             // blow up (or refuse the cut), each frame then takes as many smaller steps as it
             // needs. The estimate is a power iteration, paid once per cut; the explicit
             // integrator is for comparisons and CFL studies, interactive cutting runs implicit.
-            Integrator::Explicit { dt, stable_dt: limit, substeps, .. } => {
+            HexStepper::Explicit { dt, stable_dt: limit, substeps, .. } => {
                 *limit = stable_dt(&model, &hex.force_field, &self.fixed);
                 *substeps = (*dt / *limit).ceil().max(1.0) as usize;
             }
-            Integrator::Static { .. } => {}
+            HexStepper::Static { .. } => {}
         }
         hex.model = model;
         self.state = state;
         Ok(changes)
     }
 
-    /// The scene's configuration (with `model.kind = "auto"`, `level` is the level chosen).
+    /// Removes tetrahedra of a tensor-mass scene by index in [`TetBody::mesh`], each with any
+    /// tetrahedra that would then hang on by an edge or a vertex, and subtracts their stiffness
+    /// (paper 2 §3.2); the vertices stay, so the state and the node numbering do not change.
+    /// Returns every tetrahedron removed, in order of removal (none for one already removed).
+    /// An index beyond the mesh is refused before anything is removed.
+    pub fn remove_tets(&mut self, tets: &[usize]) -> Result<Vec<usize>, CutError> {
+        let Body::Tet(tet) = &mut self.body else { return Err(CutError::NotTetrahedra) };
+        let count = tet.mesh.tets().len();
+        if let Some(&bad) = tets.iter().find(|&&t| t >= count) {
+            return Err(CutError::NoSuchTet { tet: bad, count });
+        }
+        let mut removed = Vec::new();
+        for &t in tets {
+            removed.extend(tet.force_field.remove_tet(&tet.model, &mut tet.topology, t));
+        }
+        Ok(removed)
+    }
+
+    /// The scene's configuration (with `model.kind = "auto"`, the level is the level chosen).
     #[must_use]
     pub fn config(&self) -> &SceneConfig {
         &self.config
@@ -633,13 +553,13 @@ impl Simulation {
     #[must_use]
     pub fn explicit_stable_dt(&self) -> Option<f64> {
         match &self.body {
-            Body::Hex(hex) => match &hex.integrator {
-                Integrator::Explicit { stable_dt: limit, .. } => Some(*limit),
+            Body::Hex(hex) => match &hex.stepper {
+                HexStepper::Explicit { stable_dt: limit, .. } => Some(*limit),
                 _ => None,
             },
-            Body::Tet(tet) => match tet.integrator {
-                TetIntegrator::Explicit(_) => Some(tet.stable_dt),
-                TetIntegrator::Implicit(_) => None,
+            Body::Tet(tet) => match tet.stepper {
+                TetStepper::Explicit(_) => Some(tet.stable_dt),
+                TetStepper::Implicit(_) => None,
             },
         }
     }
@@ -700,21 +620,104 @@ impl Simulation {
     }
 }
 
-/// Builds the tensor-mass mechanics of a scene and its fixed vertices.
-fn tet_body(
+/// A label volume as the scene uses it: a file's through the scene's label filter, cropped to
+/// the foreground and strided; a procedural block's as built.
+fn prepared(spec: &VolumeSpec, raw: &LabelVolume) -> Result<LabelVolume, String> {
+    match spec {
+        VolumeSpec::File { stride, labels, .. } => {
+            raw.filtered(labels).crop_and_stride(*stride).map_err(|e| e.to_string())
+        }
+        VolumeSpec::Block { .. } => Ok(raw.clone()),
+    }
+}
+
+/// `mesh`, its coordinates given in `unit`, in metres.
+fn in_metres(mesh: &TetMesh, unit: LengthUnit) -> Result<TetMesh, String> {
+    if unit == LengthUnit::Metre {
+        return Ok(mesh.clone());
+    }
+    let per_metre = unit.per_metre();
+    let vertices = mesh.vertices().iter().map(|p| p.map(|c| c / per_metre)).collect();
+    TetMesh::new(vertices, mesh.tets().to_vec(), mesh.regions().to_vec())
+        .map_err(|e| format!("the mesh in metres: {e}"))
+}
+
+/// Builds the hexahedral mechanics of a scene at grid `level` and its fixed nodes.
+fn hex_body(
     config: &SceneConfig,
-    spec: &TensorMassSpec,
+    hex: &HexSpec,
+    level: u32,
     volume: &LabelVolume,
     table: &MaterialTable,
     exec: Executor,
+) -> Result<(HexBody, FixedNodes), String> {
+    let grid = BranchedGrid::build(volume, table, level).map_err(|e| e.to_string())?;
+    let model = HexModel::from_grid(&grid);
+    let force_field = HexForceField::new(&model, hex.formulation).with_executor(exec);
+    if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l))
+        .or_else(|| empty_region_hold(config, &model.rest, grid.element_size()))
+    {
+        return Err(message);
+    }
+    let fixed = fixed_nodes(config, &grid, &model);
+    let loads = patch_loads(config, &model)?;
+    let stepper = match hex.integrator {
+        Integrator::ImplicitEuler { dt, solver, mass, damping } => {
+            let mut be = BackwardEuler::with_solver(
+                dt,
+                damping,
+                CgSettings {
+                    // The exact solve runs no CG; the tolerance is only carried.
+                    tolerance: solver.cg_tolerance().unwrap_or(DEFAULT_CG_TOLERANCE),
+                    max_iterations: 10 * model.dof_count().max(100),
+                },
+                solver.linear_solver(),
+            );
+            be.mass = mass;
+            HexStepper::Implicit(Box::new(be))
+        }
+        Integrator::Explicit { dt, rayleigh_alpha } => {
+            let limit = stable_dt(&model, &force_field, &fixed);
+            if dt > limit {
+                return Err(format!(
+                    "integrator.dt = {dt} s is above the explicit stability limit {limit:.3e} s of this mesh; use a smaller dt or the implicit integrator"
+                ));
+            }
+            HexStepper::Explicit { dt, alpha: rayleigh_alpha, stable_dt: limit, substeps: 1 }
+        }
+        Integrator::Static { tolerance, solver, .. } => {
+            HexStepper::Static { tolerance, cholesky: solver == StaticSolver::CholeskyCg }
+        }
+    };
+    Ok((HexBody { grid, model, force_field, loads, stepper }, fixed))
+}
+
+/// Builds the tensor-mass mechanics of a scene and its fixed vertices, on `mesh` (in metres),
+/// generated from the volume's cells (`cells`) or read from a file.
+fn tet_body(
+    config: &SceneConfig,
+    spec: &TensorMassSpec,
+    mesh: TetMesh,
+    cells: Option<VoxelCells>,
+    table: &MaterialTable,
+    exec: Executor,
 ) -> Result<(TetBody, FixedNodes), String> {
-    let (mesh, cells) = incise_mesh::generate::from_volume_with_cells(volume, config.level)
-        .map_err(|e| format!("tetrahedralising the volume at level {}: {e}", config.level))?;
+    let mut regions: Vec<u32> = mesh.regions().to_vec();
+    regions.sort_unstable();
+    regions.dedup();
+    if let Some(&region) =
+        regions.iter().find(|&&r| u16::try_from(r).ok().and_then(|l| table.get(l)).is_none())
+    {
+        let count = mesh.regions().iter().filter(|&&r| r == region).count();
+        return Err(format!(
+            "region {region} ({count} tetrahedra) has no `[[materials]]` entry with that label"
+        ));
+    }
     let material = |region: u32| -> TetMaterial {
         let m = u16::try_from(region)
             .ok()
             .and_then(|l| table.get(l).copied())
-            .unwrap_or_else(incise_grid::Material::liver);
+            .expect("every region has a material (checked above)");
         let lame = Lame::from_young_poisson(m.youngs_modulus, m.poisson_ratio);
         TetMaterial {
             lame,
@@ -732,33 +735,59 @@ fn tet_body(
     if let Some(threshold) = spec.adaptive_threshold {
         force_field.enable_adaptive(&model, threshold, 0.2);
     }
-    let step = f64::from(1u32 << config.level);
-    let size: Vec3 = std::array::from_fn(|a| step * volume.spacing()[a]);
-    if let Some(message) = missing_label_holds(config, |l| volume.labels().contains(&l))
+    // The tolerance of plane holds: a cell's size, or a file mesh's extent.
+    let size: Vec3 = match &cells {
+        Some(c) => {
+            let step = f64::from(1u32 << c.level);
+            std::array::from_fn(|a| step * c.volume.spacing()[a])
+        }
+        None => std::array::from_fn(|a| {
+            let (lo, hi) =
+                model.rest.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                    (lo.min(p[a]), hi.max(p[a]))
+                });
+            hi - lo
+        }),
+    };
+    let present = |l: u16| match &cells {
+        Some(c) => c.volume.labels().contains(&l),
+        None => mesh.regions().contains(&u32::from(l)),
+    };
+    if let Some(message) = missing_label_holds(config, present)
         .or_else(|| empty_region_hold(config, &model.rest, size))
     {
         return Err(message);
     }
-    // A cell's tetrahedra are held when the cell holds a voxel with the label.
-    let fixed = fixed_at(config, &model.rest, size, |label| {
-        let step = 1usize << config.level;
-        let dims = volume.dims();
-        let labels = volume.labels();
-        let holds = |c: &[usize; 3]| {
-            (c[2] * step..((c[2] + 1) * step).min(dims[2])).any(|z| {
-                (c[1] * step..((c[1] + 1) * step).min(dims[1])).any(|y| {
-                    (c[0] * step..((c[0] + 1) * step).min(dims[0]))
-                        .any(|x| labels[x + dims[0] * (y + dims[1] * z)] == label)
+    let fixed = fixed_at(config, &model.rest, size, |label| match &cells {
+        // A cell's tetrahedra are held when the cell holds a voxel with the label.
+        Some(c) => {
+            let step = 1usize << c.level;
+            let dims = c.volume.dims();
+            let labels = c.volume.labels();
+            let holds = |cell: &[usize; 3]| {
+                (cell[2] * step..((cell[2] + 1) * step).min(dims[2])).any(|z| {
+                    (cell[1] * step..((cell[1] + 1) * step).min(dims[1])).any(|y| {
+                        (cell[0] * step..((cell[0] + 1) * step).min(dims[0]))
+                            .any(|x| labels[x + dims[0] * (y + dims[1] * z)] == label)
+                    })
                 })
-            })
-        };
-        cells
+            };
+            c.cells
+                .iter()
+                .enumerate()
+                .filter(|(_, cell)| holds(cell))
+                .flat_map(|(g, _)| (6 * g..6 * g + 6).flat_map(|t| mesh.tets()[t]))
+                .map(|v| v as usize)
+                .collect()
+        }
+        None => mesh
+            .tets()
             .iter()
-            .enumerate()
-            .filter(|(_, c)| holds(c))
-            .flat_map(|(g, _)| (6 * g..6 * g + 6).flat_map(|t| mesh.tets()[t]))
+            .zip(mesh.regions())
+            .filter(|&(_, &r)| r == u32::from(label))
+            .flat_map(|(t, _)| *t)
             .map(|v| v as usize)
-            .collect()
+            .collect(),
     });
     let mut external = patch_forces(config, &model.rest)?;
     for (f, m) in external.iter_mut().zip(&model.lumped_mass) {
@@ -767,25 +796,20 @@ fn tet_body(
         }
     }
     let stable_dt = incise_fem::ode::central_difference::stable_dt(&model, &force_field, &fixed);
-    let integrator = match config.integrator {
-        IntegratorKind::ImplicitEuler => TetIntegrator::Implicit(Box::new(BackwardEuler::new(
-            config.dt,
-            Rayleigh { alpha: config.rayleigh_alpha, beta: config.rayleigh_beta },
-            CgSettings {
-                tolerance: config.cg_tolerance,
-                max_iterations: 10 * (3 * model.vertex_count()).max(100),
-            },
-        ))),
-        IntegratorKind::Explicit | IntegratorKind::Static => TetIntegrator::Explicit(
-            CentralDifference::new(
-                &model,
-                &force_field,
-                &fixed,
-                &model.rest,
-                config.dt,
-                config.rayleigh_alpha,
-            )
-            .map_err(|e| format!("integrator.dt: {e}"))?,
+    let stepper = match spec.integrator {
+        TetIntegrator::ImplicitEuler { dt, cg_tolerance, damping } => {
+            TetStepper::Implicit(Box::new(BackwardEuler::new(
+                dt,
+                damping,
+                CgSettings {
+                    tolerance: cg_tolerance,
+                    max_iterations: 10 * (3 * model.vertex_count()).max(100),
+                },
+            )))
+        }
+        TetIntegrator::Explicit { dt, rayleigh_alpha } => TetStepper::Explicit(
+            CentralDifference::new(&model, &force_field, &fixed, &model.rest, dt, rayleigh_alpha)
+                .map_err(|e| format!("integrator.dt: {e}"))?,
         ),
     };
     Ok((
@@ -797,27 +821,23 @@ fn tet_body(
             force_field,
             stable_dt,
             cells,
-            voxel_dims: volume.dims(),
             loads: Loads { gravity: [0.0; 3], nodal: external },
-            integrator,
+            stepper,
         },
         fixed,
     ))
 }
 
 /// Removes the tetrahedra of every cell holding one of `edit`'s removed voxels.
-fn remove_voxel_cells(
-    tet: &mut TetBody,
-    config: &SceneConfig,
-    edit: &GridEdit,
-) -> Result<(), EditError> {
-    let dims = tet.voxel_dims;
+fn remove_voxel_cells(tet: &mut TetBody, edit: &GridEdit) -> Result<(), CutError> {
+    let Some(cells) = &tet.cells else { return Err(CutError::NoVoxels) };
+    let dims = cells.volume.dims();
     let count = dims.iter().product::<usize>();
-    let step = 1usize << config.level;
+    let step = 1usize << cells.level;
     let mut doomed: Vec<[usize; 3]> = Vec::with_capacity(edit.remove_voxels.len());
     for &v in &edit.remove_voxels {
         if v as usize >= count {
-            return Err(EditError::VoxelOutOfRange { voxel: v, count });
+            return Err(EditError::VoxelOutOfRange { voxel: v, count }.into());
         }
         let v = v as usize;
         let p = [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])];
@@ -825,8 +845,8 @@ fn remove_voxel_cells(
     }
     doomed.sort_unstable();
     doomed.dedup();
-    for k in 0..tet.cells.len() {
-        if doomed.binary_search(&tet.cells[k]).is_ok() {
+    for k in 0..cells.cells.len() {
+        if doomed.binary_search(&cells.cells[k]).is_ok() {
             for t in 6 * k..6 * k + 6 {
                 tet.force_field.remove_tet(&tet.model, &mut tet.topology, t);
             }

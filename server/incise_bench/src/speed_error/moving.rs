@@ -13,7 +13,7 @@ use anyhow::{Context, bail};
 use incise_fem::ode::{LinearSolver, stable_dt};
 use incise_fem::{Executor, Formulation, HexForceField, Idle};
 use incise_math::Vec3;
-use incise_sim::config::{IntegratorKind, ModelKind, VolumeSpec};
+use incise_sim::config::{ImplicitSolver, Integrator, Model, VolumeSpec};
 use incise_sim::{SceneConfig, Simulation, StepInputs};
 use std::time::Instant;
 
@@ -74,14 +74,18 @@ impl Scene {
     /// Reads `b2.toml` from the scene folder and clears its loads.
     pub(super) fn read(args: &SpeedErrorArgs) -> anyhow::Result<Self> {
         let path = args.scene_dir.join("b2.toml");
-        let (mut config, volume) = incise_scene::read_scene(&path)
+        let scene = incise_scene::read_scene(&path)
             .with_context(|| format!("reading scene {} (see --scene-dir)", path.display()))?;
+        let mut config = scene.config;
+        let incise_scene::SceneGeometry::Volume(volume) = scene.geometry else {
+            bail!("{}: scene B2-moving needs b2.toml's block, not a mesh", path.display());
+        };
         let [load] = &config.loads[..] else {
             bail!("{}: scene B2-moving moves b2.toml's one patch load", path.display());
         };
         let (force, radius, fixed_centre) = (load.force, load.radius, load.centre);
         config.loads.clear();
-        let VolumeSpec::Block { size_m, .. } = config.volume else {
+        let Some(&VolumeSpec::Block { size_m, .. }) = config.volume() else {
             bail!("{}: not a procedural block", path.display())
         };
         let file = path.display().to_string();
@@ -141,22 +145,46 @@ impl Scene {
 
     /// The scene with `model`, `scheme`, `dt` and `tolerance` (b2.toml's damping; the explicit
     /// integrator takes its α only, as the b2 rows' explicit runs do).
-    fn config(&self, model: ModelKind, scheme: Scheme, dt: f64, tolerance: f64) -> SceneConfig {
+    fn config(&self, model: Formulation, scheme: Scheme, dt: f64, tolerance: f64) -> SceneConfig {
         let mut config = self.config.clone();
-        config.model = model;
-        config.dt = dt;
-        config.cg_tolerance = tolerance;
-        match scheme {
-            Scheme::Implicit(solver) => {
-                config.integrator = IntegratorKind::ImplicitEuler;
-                config.solver = solver;
-            }
-            Scheme::Explicit => {
-                config.integrator = IntegratorKind::Explicit;
-                config.rayleigh_beta = 0.0;
-            }
-        }
+        let damping = self.damping();
+        let Model::Hexahedra(hex) = &mut config.model else {
+            unreachable!("read() accepts b2.toml's block only")
+        };
+        hex.formulation = model;
+        hex.integrator = match scheme {
+            Scheme::Implicit(solver) => Integrator::ImplicitEuler {
+                dt,
+                solver: match solver {
+                    LinearSolver::JacobiCg => ImplicitSolver::JacobiCg { cg_tolerance: tolerance },
+                    LinearSolver::CholeskyCg { .. } => {
+                        ImplicitSolver::CholeskyCg { cg_tolerance: tolerance }
+                    }
+                    LinearSolver::Cholesky => ImplicitSolver::Cholesky,
+                },
+                mass: incise_fem::ode::MassMatrix::Lumped,
+                damping,
+            },
+            Scheme::Explicit => Integrator::Explicit { dt, rayleigh_alpha: damping.alpha },
+        };
         config
+    }
+
+    /// b2.toml's damping.
+    fn damping(&self) -> incise_fem::ode::Rayleigh {
+        match &self.config.model {
+            Model::Hexahedra(hex) => hex.integrator.damping(),
+            Model::TensorMass(_) => unreachable!("read() accepts b2.toml's block only"),
+        }
+    }
+
+    /// b2.toml's CG tolerance.
+    fn tolerance(&self) -> f64 {
+        match &self.config.model {
+            Model::Hexahedra(hex) => hex.integrator.cg_tolerance(),
+            Model::TensorMass(_) => None,
+        }
+        .unwrap_or(incise_sim::config::DEFAULT_CG_TOLERANCE)
     }
 
     /// Runs `config` from rest through `inputs` on `exec`: the wall time of all the steps (the
@@ -188,7 +216,7 @@ impl Scene {
     /// exact factor to `REFERENCE_TOLERANCE`, for `seconds` of simulated time.
     fn reference(
         &self,
-        model: ModelKind,
+        model: Formulation,
         name: &'static str,
         seconds: f64,
         exec: &Executor,
@@ -251,7 +279,7 @@ pub(super) fn rows(
     let mut references = Vec::new();
     let mut rows = Vec::new();
     for (kind, name) in
-        [(ModelKind::Corotational, "corotational-hex"), (ModelKind::Linear, "linear-hex")]
+        [(Formulation::Corotational, "corotational-hex"), (Formulation::Linear, "linear-hex")]
     {
         bar.set_message(format!("{SCENE} {name} reference (dt = {REFERENCE_DT} s)"));
         let reference = scene.reference(kind, name, seconds, exec)?;
@@ -261,7 +289,7 @@ pub(super) fn rows(
             reference.seconds
         );
         let solvers = [LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }];
-        let direct = (kind == ModelKind::Linear).then_some(LinearSolver::Cholesky);
+        let direct = (kind == Formulation::Linear).then_some(LinearSolver::Cholesky);
         let schemes = solvers.into_iter().chain(direct).map(Scheme::Implicit);
         let runs = schemes.flat_map(|s| DTS.map(|dt| (s, dt))).chain([(Scheme::Explicit, DTS[0])]);
         for (scheme, dt) in runs {
@@ -269,7 +297,7 @@ pub(super) fn rows(
             bar.set_message(format!("{SCENE} {name} {integrator} {solver} {dt} s"));
             let steps = (seconds / dt).round() as usize;
             let inputs = scene.inputs(dt, steps);
-            let config = scene.config(kind, scheme, dt, scene.config.cg_tolerance);
+            let config = scene.config(kind, scheme, dt, scene.tolerance());
             let timed = |exec: &Executor| -> anyhow::Result<Option<(Vec<f64>, Vec<Vec3>)>> {
                 let mut rates = Vec::new();
                 let mut first = None;
@@ -300,7 +328,7 @@ pub(super) fn rows(
                 integrator,
                 solver,
                 resolution: "11x8x6".into(),
-                level: scene.config.level,
+                level: scene.config.level().unwrap_or(0),
                 elements: scene.elements,
                 dofs: scene.dofs,
                 dt,
@@ -320,8 +348,8 @@ pub(super) fn rows(
     }
     let summary = Summary {
         references,
-        alpha: scene.config.rayleigh_alpha,
-        beta: scene.config.rayleigh_beta,
+        alpha: scene.damping().alpha,
+        beta: scene.damping().beta,
         simulated_seconds: seconds,
         explicit_limit: scene.explicit_limit,
     };

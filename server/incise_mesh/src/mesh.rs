@@ -100,6 +100,8 @@ const DEGENERATE_RATIO: f64 = 1e-9;
 
 /// Signed volume of the tetrahedron `p` (positive when `p1 − p0, p2 − p0, p3 − p0` is right-handed).
 #[must_use]
+// Inline across crates: the incompressibility penalty calls it per tetrahedron per step.
+#[inline]
 pub fn signed_volume(p: &[Vec3; 4]) -> f64 {
     let e = |i: usize| -> Vec3 { std::array::from_fn(|a| p[i][a] - p[0][a]) };
     dot(&e(1), &cross(&e(2), &e(3))) / 6.0
@@ -170,24 +172,28 @@ impl TetMesh {
 
     /// Vertex rest positions (m).
     #[must_use]
+    #[inline]
     pub fn vertices(&self) -> &[Vec3] {
         &self.vertices
     }
 
     /// Tetrahedra, positively oriented.
     #[must_use]
+    #[inline]
     pub fn tets(&self) -> &[[u32; 4]] {
         &self.tets
     }
 
     /// Region label of each tetrahedron.
     #[must_use]
+    #[inline]
     pub fn regions(&self) -> &[u32] {
         &self.regions
     }
 
     /// Rest positions of tetrahedron `t`'s vertices.
     #[must_use]
+    #[inline]
     pub fn tet_positions(&self, t: usize) -> [Vec3; 4] {
         self.tets[t].map(|i| self.vertices[i as usize])
     }

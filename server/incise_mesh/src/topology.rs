@@ -275,72 +275,84 @@ impl TetTopology {
 
     /// Vertices (all, including those no live tetrahedron uses any more).
     #[must_use]
+    #[inline]
     pub fn vertex_count(&self) -> usize {
         self.vertex_count
     }
 
     /// All tetrahedra ever in the mesh (live or removed), by index.
     #[must_use]
+    #[inline]
     pub fn tets(&self) -> &[[u32; 4]] {
         &self.tets
     }
 
     /// Whether tetrahedron `t` is live.
     #[must_use]
+    #[inline]
     pub fn is_alive(&self, t: usize) -> bool {
         self.alive[t]
     }
 
     /// Live tetrahedra.
     #[must_use]
+    #[inline]
     pub fn live_count(&self) -> usize {
         self.live
     }
 
     /// Edges as sorted vertex pairs.
     #[must_use]
+    #[inline]
     pub fn edges(&self) -> &[[u32; 2]] {
         &self.edges
     }
 
     /// Triangles as sorted vertex triples.
     #[must_use]
+    #[inline]
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.triangles
     }
 
     /// Edge ids of tetrahedron `t`, in [`EDGES`] order.
     #[must_use]
+    #[inline]
     pub fn tet_edges(&self, t: usize) -> &[u32; 6] {
         &self.tet_edges[t]
     }
 
     /// Triangle ids of tetrahedron `t`, face `f` opposite vertex `f`.
     #[must_use]
+    #[inline]
     pub fn tet_triangles(&self, t: usize) -> &[u32; 4] {
         &self.tet_triangles[t]
     }
 
     /// Live tetrahedra using vertex `v`.
     #[must_use]
+    #[inline]
     pub fn vertex_degree(&self, v: usize) -> u32 {
         self.vertex_tets[v]
     }
 
     /// Live tetrahedra around edge `e`.
     #[must_use]
+    #[inline]
     pub fn edge_degree(&self, e: usize) -> u32 {
         self.edge_tets[e]
     }
 
     /// Live tetrahedra on triangle `f` (0, 1 or 2).
     #[must_use]
+    #[inline]
     pub fn triangle_degree(&self, f: usize) -> u32 {
         self.triangle_tets[f]
     }
 
     /// The live tetrahedron across face `f` of tetrahedron `t`, if any.
     #[must_use]
+    #[inline]
     pub fn neighbour(&self, t: usize, f: usize) -> Option<usize> {
         let tri = self.tet_triangles[t][f] as usize;
         self.triangle_owners[tri]

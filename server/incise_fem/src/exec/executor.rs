@@ -363,6 +363,19 @@ mod tests {
     }
 
     #[test]
+    fn beside_a_realtime_thread_the_physics_leaves_a_core_and_sleeps() {
+        let exec = Executor::beside_realtime_thread();
+        let cores = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
+        assert_eq!(exec.idle(), Idle::Sleep);
+        assert!(exec.threads() >= 1);
+        assert!(
+            cores == 1 || exec.threads() < cores,
+            "{} threads on {cores} cores",
+            exec.threads()
+        );
+    }
+
+    #[test]
     fn two_executors_have_their_own_threads() {
         let a = Executor::new(2, Idle::Sleep);
         let b = Executor::new(1, Idle::Sleep);

@@ -13,12 +13,17 @@ use incise_math::mat3::{cross, dot as dot3};
 
 /// `∂V/∂x_p` for the four vertices of the tetrahedron `p`.
 #[must_use]
+// Plain array expressions, not `array::from_fn` or `map` closures: whether those are inlined
+// depends on how the crate falls into codegen units, and this runs per tetrahedron per step.
+#[inline]
 pub fn volume_gradient(p: &[Vec3; 4]) -> [Vec3; 4] {
-    let d = |a: usize, b: usize| -> Vec3 { std::array::from_fn(|k| p[b][k] - p[a][k]) };
-    let g1 = cross(&d(0, 2), &d(0, 3)).map(|x| x / 6.0);
-    let g2 = cross(&d(0, 3), &d(0, 1)).map(|x| x / 6.0);
-    let g3 = cross(&d(0, 1), &d(0, 2)).map(|x| x / 6.0);
-    let g0 = std::array::from_fn(|k| -g1[k] - g2[k] - g3[k]);
+    let d =
+        |a: usize, b: usize| -> Vec3 { [p[b][0] - p[a][0], p[b][1] - p[a][1], p[b][2] - p[a][2]] };
+    let sixth = |v: Vec3| -> Vec3 { [v[0] / 6.0, v[1] / 6.0, v[2] / 6.0] };
+    let g1 = sixth(cross(&d(0, 2), &d(0, 3)));
+    let g2 = sixth(cross(&d(0, 3), &d(0, 1)));
+    let g3 = sixth(cross(&d(0, 1), &d(0, 2)));
+    let g0 = [-g1[0] - g2[0] - g3[0], -g1[1] - g2[1] - g3[1], -g1[2] - g2[2] - g3[2]];
     [g0, g1, g2, g3]
 }
 

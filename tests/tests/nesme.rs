@@ -276,7 +276,7 @@ fn compare_under(name: &str, volume: &LabelVolume, table: &MaterialTable, z_fix:
             ru * 50.0
         );
         assert!(rb <= rc * (1.0 + 1e-9), "{name}, level {level}: a solution beat the best fit");
-        // Issue 4 asks for cc ≤ ½ cu; that does not hold at levels 2–3 (see the table), so this
+        // Nesme's bound cc ≤ ½ cu does not hold at levels 2–3 (see the table), so this
         // asserts what does: condensed elements beat uniform ones on both measures, and no
         // solution beats the least-squares fit (a check of the fit itself).
         assert!(

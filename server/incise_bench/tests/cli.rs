@@ -167,7 +167,11 @@ fn speed_error_report_writes_table_csv_png_and_json() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let j = last_json(&out);
     let rows = j["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 2 * 2 * 2 * 2, "2 meshes x 2 models x 2 integrators x 2 dt");
+    assert_eq!(
+        rows.len(),
+        2 * 2 * 3 * 2,
+        "2 meshes x 2 models x (explicit, jacobi-cg and cholesky-cg implicit) x 2 dt"
+    );
     for row in rows {
         for key in [
             "scene",

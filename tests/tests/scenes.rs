@@ -70,23 +70,8 @@ fn cantilever_scene_reaches_beam_theory() {
     assert!((d - 14.715e-3).abs() <= 0.02 * 14.715e-3, "tip deflection {:.3} mm", d * 1e3);
 }
 
-const GOOD: &str = r#"name = "t"
-[volume]
-procedural = "block"
-size_m = [0.1, 0.1, 0.1]
-voxels = [2, 2, 2]
-[[materials]]
-label = 1
-youngs_modulus = 1000.0
-poisson_ratio = 0.3
-density = 1000.0
-[integrator]
-kind = "implicit-euler"
-dt = 0.001
-[[fixed]]
-plane = "z"
-value = 0.1
-"#;
+/// A 2 × 2 × 2 block hanging from its top face: the smallest valid scene, shared with `incise_sim`'s config tests.
+const GOOD: &str = include_str!("../../server/incise_sim/tests/data/minimal_block.toml");
 
 #[test]
 fn a_static_scene_solves_with_the_solver_it_names() {

@@ -12,23 +12,8 @@ fn error(text: &str) -> SceneError {
     SceneConfig::from_toml(text, "bad.toml").unwrap_err()
 }
 
-const GOOD: &str = r#"name = "t"
-[volume]
-procedural = "block"
-size_m = [0.1, 0.1, 0.1]
-voxels = [2, 2, 2]
-[[materials]]
-label = 1
-youngs_modulus = 1000.0
-poisson_ratio = 0.3
-density = 1000.0
-[integrator]
-kind = "implicit-euler"
-dt = 0.001
-[[fixed]]
-plane = "z"
-value = 0.1
-"#;
+/// A 2 × 2 × 2 block hanging from its top face: the smallest valid scene, shared with the cross-crate scene tests.
+const GOOD: &str = include_str!("data/minimal_block.toml");
 
 #[test]
 fn scene_errors_name_the_key_and_line() {

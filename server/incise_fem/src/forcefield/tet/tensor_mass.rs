@@ -194,6 +194,8 @@ struct AdaptiveState {
     threshold: f64,
     hysteresis: f64,
     flags: Vec<bool>,
+    /// How many of `flags` are set, kept as they flip (read every step).
+    nonlinear: usize,
     /// Tetrahedra of each vertex.
     vertex_tets: Vec<Vec<u32>>,
     /// Non-linear vertices of each tetrahedron.
@@ -597,6 +599,7 @@ impl TensorMassForceField {
             threshold,
             hysteresis: hysteresis.clamp(0.0, 1.0),
             flags: vec![false; self.vertex_b.len()],
+            nonlinear: 0,
             vertex_tets,
             tet_count: vec![0; model.tets.len()],
             changed: Vec::new(),
@@ -624,6 +627,7 @@ impl TensorMassForceField {
             };
             if on != state.flags[v] {
                 state.flags[v] = on;
+                state.nonlinear = if on { state.nonlinear + 1 } else { state.nonlinear - 1 };
                 for &t in &state.vertex_tets[v] {
                     let c = &mut state.tet_count[t as usize];
                     let was = *c > 0;
@@ -634,7 +638,7 @@ impl TensorMassForceField {
                 }
             }
         }
-        let count = state.flags.iter().filter(|&&f| f).count();
+        let count = state.nonlinear;
         if state.changed.is_empty() {
             return count;
         }
@@ -675,7 +679,7 @@ impl TensorMassForceField {
     #[must_use]
     pub fn nonlinear_count(&self) -> usize {
         match &self.adaptive {
-            Some(state) => state.flags.iter().filter(|&&f| f).count(),
+            Some(state) => state.nonlinear,
             None if self.kind == Elasticity::Linear => 0,
             None => self.vertex_b.len(),
         }

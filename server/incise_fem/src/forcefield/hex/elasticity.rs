@@ -1,7 +1,7 @@
 //! The hexahedral model's elasticity as a [`ForceField`]: a [`HexForceField`] bound to the
 //! [`HexModel`] whose elements it holds the rotations of.
 
-use super::{Formulation, HexForceField};
+use super::HexForceField;
 use crate::forcefield::ForceField;
 use crate::model::HexModel;
 use incise_math::Vec3;
@@ -59,13 +59,5 @@ impl ForceField for HexElasticity<'_> {
 
     fn hexahedra(&self) -> Option<(&HexModel, &HexForceField)> {
         Some((self.model, self.field))
-    }
-}
-
-impl HexElasticity<'_> {
-    /// The formulation of the bound field.
-    #[must_use]
-    pub fn formulation(&self) -> Formulation {
-        self.field.formulation()
     }
 }

@@ -214,7 +214,7 @@ fn auto_model_runs_on_the_coarsest_level_within_its_error() {
     assert!(c.levels.iter().any(|l| l.level == 0 && l.error == 0.0));
     // A looser bound never picks a finer level.
     let path = scene("liver_auto.toml");
-    let incise_scene::Scene { mut config, geometry } = incise_scene::read_scene(&path).unwrap();
+    let incise_scene::Scene { mut config, geometry, .. } = incise_scene::read_scene(&path).unwrap();
     let mut bound = |max_error: f64| {
         let Model::Hexahedra(HexSpec { level: Level::Auto(auto), .. }) = &mut config.model else {
             panic!("liver_auto.toml chooses its level")
@@ -748,4 +748,57 @@ fn a_tensor_mass_scene_reads_its_tetrahedra_from_a_mesh_file() {
     }
     // A hexahedral scene has no tetrahedra to remove.
     assert_eq!(load("b1.toml").remove_tets(&[0]), Err(incise_sim::CutError::NotTetrahedra));
+}
+
+#[test]
+fn a_mesh_scene_names_its_region_array_and_is_told_what_was_skipped() {
+    // meshio's fixture: twelve tetrahedra in physical groups 11 and 12, elementary entities 1
+    // and 2, and two boundary triangles. The scene asks for the entities.
+    let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../server/incise_io/tests/data/foreign/meshio_ascii.vtu");
+    let dir = std::env::temp_dir().join(format!("incise-region-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(&fixture, dir.join("organ.vtu")).unwrap();
+    let material = |label: u32| {
+        format!(
+            "[[materials]]\nlabel = {label}\nyoungs_modulus = 3000.0\npoisson_ratio = 0.3\n\
+             density = 1000.0\n"
+        )
+    };
+    let write = |region: &str| {
+        let text = format!(
+            "name = \"region\"\n[volume]\nmesh = \"organ.vtu\"\nunit = \"mm\"\n{region}\n{}{}\
+             [model]\nkind = \"tensor-mass\"\nelasticity = \"linear\"\n\
+             [integrator]\nkind = \"implicit-euler\"\ndt = 0.01\n\
+             [[fixed]]\nplane = \"z\"\nvalue = 0.0005\n",
+            material(1),
+            material(2)
+        );
+        let path = dir.join("scene.toml");
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let path = write("region = \"gmsh:geometrical\"");
+    let read = incise_scene::read_scene(&path).unwrap();
+    let mesh = read.geometry.mesh().unwrap();
+    let regions: Vec<u32> = [1; 6].into_iter().chain([2; 6]).collect();
+    assert_eq!(mesh.regions(), &regions[..]);
+    let [source, skipped] = &read.notes[..] else { panic!("{:?}", read.notes) };
+    assert!(
+        source.ends_with("organ.vtu: regions from cell array \"gmsh:geometrical\""),
+        "{source}"
+    );
+    assert!(skipped.ends_with("skipped 2 cells that are not tetrahedra (2 triangle)"), "{skipped}");
+    let mut sim = Simulation::new(&read.config, &read.geometry, "scene.toml").unwrap();
+    sim.step(&StepInputs::default()).unwrap();
+
+    // Without the key the physical groups 11 and 12 are the regions, which have no material.
+    let e = incise_scene::read_scene(&write(""))
+        .map(|s| Simulation::new(&s.config, &s.geometry, "scene.toml").map(|_| ()))
+        .unwrap();
+    assert!(e.is_err_and(|e| e.to_string().contains("11")));
+    // A name the file lacks: the error says which arrays it has.
+    let e = incise_scene::read_scene(&write("region = \"tissue\"")).unwrap_err().to_string();
+    assert!(e.contains("region array") && e.contains("\"gmsh:physical\""), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

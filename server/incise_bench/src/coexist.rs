@@ -142,6 +142,9 @@ pub fn run(args: &CoexistArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.period_us > 0, "--period-us must be positive");
     let path = scene_path(&args.scene, &args.scene_dir);
     let scene = incise_scene::read_scene(&path).map_err(|e| anyhow::anyhow!("--scene: {e}"))?;
+    for note in &scene.notes {
+        eprintln!("note: {note}");
+    }
     let period = Duration::from_micros(args.period_us);
     let settings: [(usize, bool); 4] = [(1, false), (1, true), (2, false), (2, true)];
     // Progress as plain lines: a progress bar's ticking thread would wake beside the probe.

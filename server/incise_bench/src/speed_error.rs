@@ -245,7 +245,7 @@ fn load_scene(
     voxels: Option<[usize; 3]>,
 ) -> anyhow::Result<(SceneConfig, Simulation, incise_grid::LabelVolume)> {
     let path = args.scene_dir.join(file);
-    let incise_scene::Scene { mut config, geometry } = incise_scene::read_scene(&path)
+    let incise_scene::Scene { mut config, geometry, .. } = incise_scene::read_scene(&path)
         .with_context(|| format!("reading scene {} (see --scene-dir)", path.display()))?;
     let Some(mut volume) = geometry.volume().cloned() else {
         bail!("scene {}: the report measures scenes on a label volume", path.display());

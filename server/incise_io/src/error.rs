@@ -138,6 +138,14 @@ pub enum IoError {
         /// Why the mesh was refused; its tetrahedron index counts the file's tetrahedra only.
         source: TetMeshError,
     },
+    /// The region array a caller named is not in the mesh file, or cannot hold region labels.
+    #[error("{file}: region array: {what}")]
+    RegionArray {
+        /// The file.
+        file: String,
+        /// What was asked for and what the file has.
+        what: String,
+    },
 }
 
 impl IoError {
@@ -156,6 +164,7 @@ impl IoError {
             | Self::Syntax { file, .. }
             | Self::Binary { file, .. }
             | Self::Mesh { file, .. }
+            | Self::RegionArray { file, .. }
             | Self::UnknownFormat { file } => file,
         }
     }

@@ -305,6 +305,26 @@ fn fuzz_mesh_decoder(seed: u64, (valid, mesh): (impl AsRef<[u8]>, TetMesh), deco
     assert!(errors * 4 >= cases, "only {errors} of {cases} damaged encodings were refused");
 }
 
+/// The decoders with a named region array: the arrays the encoders write are `region` (VTK)
+/// and the physical tags (Gmsh).
+fn named_region(name: &str) -> crate::MeshOptions {
+    crate::MeshOptions { region: Some(name.to_owned()) }
+}
+
+#[test]
+fn damaged_meshes_read_with_a_named_region_never_panic() {
+    let mesh = small_mesh();
+    fuzz_mesh_decoder(11, (encode_gmsh22(&mesh), mesh.clone()), |b, n| {
+        crate::decode_gmsh_with(b, n, &named_region("gmsh:physical")).map(|f| f.mesh)
+    });
+    fuzz_mesh_decoder(12, (encode_vtk_legacy(&mesh), mesh.clone()), |b, n| {
+        crate::decode_vtk_legacy_with(b, n, &named_region("region")).map(|f| f.mesh)
+    });
+    fuzz_mesh_decoder(13, (encode_vtu(&mesh), mesh), |b, n| {
+        crate::decode_vtu_with(b, n, &named_region("region")).map(|f| f.mesh)
+    });
+}
+
 #[test]
 fn damaged_gmsh22_never_panics() {
     let mesh = small_mesh();

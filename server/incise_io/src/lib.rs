@@ -30,9 +30,10 @@ pub use error::IoError;
 pub use inr::{decode_inr, encode_inr, read_inr, write_inr};
 pub use nifti::{decode_nifti, encode_nifti, read_nifti, write_nifti};
 pub use tet_mesh::{
-    VtkCells, VtuBinary, VtuData, decode_gmsh, decode_vtk_legacy, decode_vtu, encode_gmsh22,
+    MeshFile, MeshOptions, VtkCells, VtuBinary, VtuData, decode_gmsh, decode_gmsh_with,
+    decode_vtk_legacy, decode_vtk_legacy_with, decode_vtu, decode_vtu_with, encode_gmsh22,
     encode_gmsh41_binary, encode_vtk_legacy, encode_vtk_legacy_binary, encode_vtu,
-    encode_vtu_binary, read_tet_mesh,
+    encode_vtu_binary, read_tet_mesh, read_tet_mesh_with,
 };
 
 use incise_grid::LabelVolume;

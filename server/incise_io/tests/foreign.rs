@@ -8,7 +8,10 @@
 mod common;
 
 use common::{Nifti, assert_close, gz, inr_file};
-use incise_io::{decode_gmsh, decode_inr, decode_nifti, decode_vtk_legacy, decode_vtu};
+use incise_io::{
+    MeshFile, MeshOptions, decode_gmsh, decode_gmsh_with, decode_inr, decode_nifti,
+    decode_vtk_legacy, decode_vtk_legacy_with, decode_vtu, decode_vtu_with,
+};
 use incise_mesh::TetMesh;
 
 fn labels_le<T: Copy>(values: &[T], to: impl Fn(T) -> Vec<u8>) -> Vec<u8> {
@@ -270,6 +273,80 @@ fn meshes_written_by_meshio_and_vtk_read_alike() {
         assert_eq!(mesh.vertices(), &points[..], "{file}");
         assert_eq!(mesh.tets(), &FOREIGN_TETS, "{file}");
         assert_eq!(mesh.regions(), &regions[..], "{file}");
+    }
+}
+
+/// Every fixture read with `options`, with whether it is a Gmsh file.
+fn foreign_meshes_with(
+    options: &MeshOptions,
+) -> Vec<(&'static str, bool, Result<MeshFile, incise_io::IoError>)> {
+    macro_rules! read {
+        ($decode:ident, $file:literal) => {
+            (
+                $file,
+                $file.ends_with(".msh"),
+                $decode(include_bytes!(concat!("data/foreign/", $file)), $file, options),
+            )
+        };
+    }
+    vec![
+        read!(decode_gmsh_with, "meshio_binary.msh"),
+        read!(decode_gmsh_with, "meshio_ascii.msh"),
+        read!(decode_vtu_with, "meshio_ascii.vtu"),
+        read!(decode_vtu_with, "meshio_zlib.vtu"),
+        read!(decode_vtu_with, "meshio_uint64.vtu"),
+        read!(decode_vtu_with, "vtk_appended_raw.vtu"),
+        read!(decode_vtu_with, "vtk_appended_raw_zlib64.vtu"),
+        read!(decode_vtu_with, "vtk_appended_base64_zlib.vtu"),
+        read!(decode_vtu_with, "vtk_binary_bigendian.vtu"),
+        read!(decode_vtk_legacy_with, "meshio_51_binary.vtk"),
+        read!(decode_vtk_legacy_with, "meshio_42_binary.vtk"),
+        read!(decode_vtk_legacy_with, "vtk_binary.vtk"),
+    ]
+}
+
+#[test]
+fn the_region_array_can_be_named_and_skipped_cells_are_counted() {
+    // By default the regions are the physical groups (`gmsh:physical` comes after the float
+    // array `quality` and before `gmsh:geometrical`, so the name decides, not the order).
+    for (file, gmsh, read) in foreign_meshes_with(&MeshOptions::default()) {
+        let read = read.unwrap_or_else(|e| panic!("{e}"));
+        let source = if gmsh { "physical tags" } else { "cell array \"gmsh:physical\"" };
+        assert_eq!(read.region_source.as_deref(), Some(source), "{file}");
+        assert_eq!(read.skipped, [("triangle".to_owned(), 2)], "{file}");
+        assert_eq!(
+            read.skipped_note().as_deref(),
+            Some("skipped 2 cells that are not tetrahedra (2 triangle)"),
+            "{file}"
+        );
+    }
+    // Named: the elementary entities 1 and 2, in every format.
+    let geometrical = MeshOptions { region: Some("gmsh:geometrical".to_owned()) };
+    let entities: Vec<u32> = [1; 6].into_iter().chain([2; 6]).collect();
+    for (file, gmsh, read) in foreign_meshes_with(&geometrical) {
+        let read = read.unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(read.mesh.regions(), &entities[..], "{file}");
+        let source =
+            if gmsh { "elementary entity tags" } else { "cell array \"gmsh:geometrical\"" };
+        assert_eq!(read.region_source.as_deref(), Some(source), "{file}");
+    }
+    // A name the file lacks lists what it has; a float array cannot be regions.
+    let missing = MeshOptions { region: Some("tissue".to_owned()) };
+    let quality = MeshOptions { region: Some("quality".to_owned()) };
+    for (file, gmsh, read) in foreign_meshes_with(&missing) {
+        let e = read.err().unwrap_or_else(|| panic!("{file}: read")).to_string();
+        let expected = if gmsh {
+            "a Gmsh file's regions are \"gmsh:physical\""
+        } else {
+            "cell-data arrays are \"quality\", \"gmsh:physical\", \"gmsh:geometrical\""
+        };
+        assert!(e.starts_with(&format!("{file}: region array: ")) && e.contains(expected), "{e}");
+    }
+    for (file, gmsh, read) in foreign_meshes_with(&quality) {
+        if !gmsh {
+            let e = read.err().unwrap_or_else(|| panic!("{file}: read")).to_string();
+            assert!(e.contains("cell array \"quality\" is") && e.contains("one integer"), "{e}");
+        }
     }
 }
 

@@ -10,6 +10,9 @@ fn main() {
     let steps: usize = args.get(2).map_or(6000, |s| s.parse().expect("steps"));
     let window: usize = args.get(3).map_or(500, |s| s.parse().expect("window"));
     let scene = incise_scene::read_scene(path.as_ref()).unwrap_or_else(|e| panic!("{e}"));
+    for note in &scene.notes {
+        eprintln!("note: {note}");
+    }
     let mut sim =
         Simulation::new(&scene.config, &scene.geometry, path).unwrap_or_else(|e| panic!("{e}"));
     let none = StepInputs::default();

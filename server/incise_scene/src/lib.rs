@@ -6,7 +6,7 @@
 //! pure and `incise_io` knows only geometry.
 
 use incise_grid::LabelVolume;
-use incise_io::IoError;
+use incise_io::{IoError, MeshOptions};
 use incise_mesh::TetMesh;
 use incise_sim::config::{Model, TetSource, VolumeSpec};
 use incise_sim::{Geometry, SceneConfig};
@@ -39,6 +39,9 @@ pub struct Scene {
     pub config: SceneConfig,
     /// The label volume or tetrahedral mesh it names.
     pub geometry: SceneGeometry,
+    /// What the user should know about how the geometry was read (cells of a mesh file that
+    /// are not tetrahedra and were skipped, where the regions came from); one sentence each.
+    pub notes: Vec<String>,
 }
 
 /// The geometry a scene file names.
@@ -86,16 +89,28 @@ pub fn read_scene(path: &Path) -> Result<Scene, SceneFileError> {
         .map_err(|source| SceneFileError::Read { file: file.clone(), source })?;
     let config = SceneConfig::from_toml(&text, &file)?;
     let base = path.parent().unwrap_or_else(|| Path::new("."));
+    let mut notes = Vec::new();
     let geometry = match &config.model {
         Model::TensorMass(tm) => match &tm.source {
             TetSource::Mesh(mesh) => {
-                SceneGeometry::Mesh(incise_io::read_tet_mesh(&base.join(&mesh.path))?)
+                let mesh_path = base.join(&mesh.path);
+                let options = MeshOptions { region: mesh.region.clone() };
+                let read = incise_io::read_tet_mesh_with(&mesh_path, &options)?;
+                let shown = mesh_path.display();
+                notes.push(match &read.region_source {
+                    Some(source) => format!("{shown}: regions from {source}"),
+                    None => format!(
+                        "{shown}: the file gives no regions; every tetrahedron is in region 1"
+                    ),
+                });
+                notes.extend(read.skipped_note().map(|note| format!("{shown}: {note}")));
+                SceneGeometry::Mesh(read.mesh)
             }
             TetSource::Volume { volume, .. } => volume_of(&config, volume, base)?,
         },
         Model::Hexahedra(hex) => volume_of(&config, &hex.volume, base)?,
     };
-    Ok(Scene { config, geometry })
+    Ok(Scene { config, geometry, notes })
 }
 
 /// The label volume `volume` describes: built when procedural, read relative to `base` when a

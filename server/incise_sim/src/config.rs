@@ -225,6 +225,10 @@ pub struct MeshSpec {
     pub path: String,
     /// The unit of the file's coordinates (`volume.unit`).
     pub unit: LengthUnit,
+    /// The cell-data array holding each tetrahedron's region (`volume.region`); `None` lets the
+    /// reader pick (`gmsh:physical`, `medit:ref`, `CellEntityIds`, else the file's first integer
+    /// cell array).
+    pub region: Option<String>,
 }
 
 /// The unit of a mesh file's coordinates.
@@ -543,6 +547,7 @@ struct RawVolume {
     voxels: Option<Spanned<[i64; 3]>>,
     mesh: Option<Spanned<String>>,
     unit: Option<Spanned<String>>,
+    region: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -1298,8 +1303,11 @@ impl Checker<'_> {
             (v.merge.as_ref().map(Spanned::span), "volume.merge"),
             (v.keep.as_ref().map(Spanned::span), "volume.keep"),
         ];
-        let mesh_keys =
-            [(span(v.mesh.as_ref()), "volume.mesh"), (span(v.unit.as_ref()), "volume.unit")];
+        let mesh_keys = [
+            (span(v.mesh.as_ref()), "volume.mesh"),
+            (span(v.unit.as_ref()), "volume.unit"),
+            (span(v.region.as_ref()), "volume.region"),
+        ];
         if let Some(path) = &v.file {
             self.refuse(
                 &procedural_keys,
@@ -1341,8 +1349,18 @@ impl Checker<'_> {
                     ));
                 }
             };
+            let region = match &v.region {
+                Some(name) if name.get_ref().trim().is_empty() => {
+                    return Err(self.invalid(
+                        name.span(),
+                        "volume.region",
+                        "is empty; name the mesh file's cell-data array that holds the regions",
+                    ));
+                }
+                other => other.as_ref().map(|name| name.get_ref().clone()),
+            };
             return Ok(Geometry::Mesh(
-                MeshSpec { path: path.get_ref().clone(), unit },
+                MeshSpec { path: path.get_ref().clone(), unit, region },
                 path.span(),
             ));
         }

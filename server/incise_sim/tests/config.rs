@@ -387,11 +387,19 @@ fn a_mesh_file_is_a_tensor_mass_source_in_its_unit() {
     };
     assert_eq!(
         source(&mesh_scene("")),
-        TetSource::Mesh(MeshSpec { path: "organ.vtu".into(), unit: LengthUnit::Metre })
+        TetSource::Mesh(MeshSpec {
+            path: "organ.vtu".into(),
+            unit: LengthUnit::Metre,
+            region: None
+        })
     );
     assert_eq!(
-        source(&mesh_scene("unit = \"mm\"")),
-        TetSource::Mesh(MeshSpec { path: "organ.vtu".into(), unit: LengthUnit::Millimetre })
+        source(&mesh_scene("unit = \"mm\"\nregion = \"medit:ref\"")),
+        TetSource::Mesh(MeshSpec {
+            path: "organ.vtu".into(),
+            unit: LengthUnit::Millimetre,
+            region: Some("medit:ref".into())
+        })
     );
     let config = SceneConfig::from_toml(&mesh_scene("unit = \"cm\""), "t.toml").unwrap();
     assert_eq!((config.volume(), config.level()), (None, None));
@@ -411,6 +419,13 @@ fn a_mesh_file_is_a_tensor_mass_source_in_its_unit() {
             "tensor-mass",
         ),
         (mesh_scene("unit = \"inch\""), 4, "volume.unit", "\"mm\""),
+        (mesh_scene("region = \" \""), 4, "volume.region", "cell-data array"),
+        (
+            GOOD.replace("voxels = [2, 2, 2]", "voxels = [2, 2, 2]\nregion = \"tissue\""),
+            6,
+            "volume.region",
+            "volume.mesh",
+        ),
         (mesh_scene("stride = [2, 2, 2]"), 4, "volume.stride", "mesh file"),
         (mesh_scene("keep = [1]"), 4, "volume.keep", "mesh file"),
         (mesh_scene("voxels = [2, 2, 2]"), 4, "volume.voxels", "volume.mesh"),

@@ -2,12 +2,12 @@
 
 use super::binary::read_unsigned;
 use super::{
-    Assembly, At, BOM, DEFAULT_REGION, GMSH_TETRAHEDRON, Origin, error_at, find_bytes, parse,
-    shown, syntax,
+    Assembly, At, BOM, DEFAULT_REGION, GMSH_TETRAHEDRON, MeshFile, MeshOptions, Origin, error_at,
+    find_bytes, parse, shown, syntax,
 };
 use crate::error::{IoError, grouped};
 use incise_mesh::TetMesh;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
 
 /// The MSH versions read.
@@ -72,10 +72,68 @@ struct GmshTet {
     tag: u64,
     at: At,
     nodes: [u64; 4],
-    /// The physical tag (2.2) or the entity tag (4.1).
-    label: i64,
-    /// Whether `label` is an entity tag to map through `$Entities`.
-    entity: bool,
+    /// Its physical tag, where the element line gives it (MSH 2.2's first tag).
+    physical: Option<i64>,
+    /// Its elementary entity tag (MSH 2.2's second tag, MSH 4.1's block entity), whose physical
+    /// tag `$Entities` may give.
+    entity: Option<i64>,
+}
+
+/// The elements of a Gmsh file as read: the tetrahedra, and how many of each other type were
+/// skipped.
+#[derive(Default)]
+struct GmshElements {
+    tets: Vec<GmshTet>,
+    skipped: BTreeMap<String, usize>,
+}
+
+impl GmshElements {
+    fn skip(&mut self, kind: i64) {
+        *self.skipped.entry(gmsh_element_name(kind)).or_default() += 1;
+    }
+}
+
+/// Gmsh's name of an element type, for the note on skipped elements.
+fn gmsh_element_name(kind: i64) -> String {
+    match kind {
+        1 => "line".to_owned(),
+        2 => "triangle".to_owned(),
+        3 => "quadrangle".to_owned(),
+        5 => "hexahedron".to_owned(),
+        6 => "prism".to_owned(),
+        7 => "pyramid".to_owned(),
+        8 => "quadratic line".to_owned(),
+        9 => "quadratic triangle".to_owned(),
+        11 => "quadratic tetrahedron".to_owned(),
+        15 => "point".to_owned(),
+        other => format!("type-{other} element"),
+    }
+}
+
+/// Which tag of a Gmsh element is its region.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum GmshRegion {
+    /// The physical tag (`"gmsh:physical"`, the default), else the entity tag.
+    Physical,
+    /// The elementary entity tag (`"gmsh:geometrical"`).
+    Geometrical,
+}
+
+impl GmshRegion {
+    fn of(file: &str, options: &MeshOptions) -> Result<Self, IoError> {
+        match options.region.as_deref() {
+            None | Some("gmsh:physical") => Ok(Self::Physical),
+            Some("gmsh:geometrical") => Ok(Self::Geometrical),
+            Some(other) => Err(IoError::RegionArray {
+                file: file.to_owned(),
+                what: format!(
+                    "the scene names {other:?}, but a Gmsh file's regions are \
+                     \"gmsh:physical\" (physical tags, the default) or \"gmsh:geometrical\" \
+                     (elementary entity tags)"
+                ),
+            }),
+        }
+    }
 }
 
 /// A Gmsh file being read.
@@ -87,21 +145,32 @@ struct Gmsh<'a> {
 /// Decodes a Gmsh mesh: ASCII MSH 2.2 or 4.1, or binary MSH 4.1 (either byte order). `name`
 /// names the bytes in errors.
 pub fn decode_gmsh(bytes: &[u8], name: &str) -> Result<TetMesh, IoError> {
+    decode_gmsh_with(bytes, name, &MeshOptions::default()).map(|file| file.mesh)
+}
+
+/// Decodes a Gmsh mesh as [`decode_gmsh`] does, with `options`: its `region` may be
+/// `"gmsh:physical"` (the default) or `"gmsh:geometrical"`.
+pub fn decode_gmsh_with(
+    bytes: &[u8],
+    name: &str,
+    options: &MeshOptions,
+) -> Result<MeshFile, IoError> {
+    let region = GmshRegion::of(name, options)?;
     let bytes = bytes.strip_prefix(BOM).unwrap_or(bytes);
     if let Some(format) = binary_41(bytes) {
-        return decode_binary(bytes, &format, name);
+        return decode_binary(bytes, &format, name, region);
     }
     // Bytes that are not UTF-8 become U+FFFD, which no number parses as: the error names the
     // line. A binary file of another version still has a text header that says what it is.
-    decode_text(&String::from_utf8_lossy(bytes), name)
+    decode_text(&String::from_utf8_lossy(bytes), name, region)
 }
 
 /// Decodes ASCII MSH 2.2 or 4.1.
-fn decode_text(text: &str, name: &str) -> Result<TetMesh, IoError> {
+fn decode_text(text: &str, name: &str, region: GmshRegion) -> Result<MeshFile, IoError> {
     let mut g = Gmsh { file: name, lines: Lines { rest: text, line: 0 } };
     let version = g.mesh_format()?;
     let mut nodes = GmshNodes::default();
-    let mut tets: Vec<GmshTet> = Vec::new();
+    let mut tets = GmshElements::default();
     let mut volumes: HashMap<i64, i64> = HashMap::new();
     let (mut saw_nodes, mut saw_elements) = (false, false);
     while let Some((line, text)) = g.lines.next_line() {
@@ -132,18 +201,21 @@ fn decode_text(text: &str, name: &str) -> Result<TetMesh, IoError> {
             return Err(syntax(name, g.lines.line, format!("the file has no {section} section")));
         }
     }
-    assemble(name, nodes, tets, &volumes)
+    assemble(name, nodes, tets, &volumes, region)
 }
 
 /// Resolves the tetrahedra's node tags and regions and checks the mesh.
 fn assemble(
     name: &str,
     nodes: GmshNodes,
-    tets: Vec<GmshTet>,
+    elements: GmshElements,
     volumes: &HashMap<i64, i64>,
-) -> Result<TetMesh, IoError> {
+    choice: GmshRegion,
+) -> Result<MeshFile, IoError> {
     let mut mesh = Assembly::new("node", "element");
-    for t in tets {
+    mesh.skipped = elements.skipped;
+    let (mut physical, mut geometrical) = (false, false);
+    for t in elements.tets {
         let mut tet = [0u32; 4];
         for (slot, tag) in tet.iter_mut().zip(t.nodes) {
             *slot = *nodes.index.get(&tag).ok_or_else(|| {
@@ -154,10 +226,19 @@ fn assemble(
                 )
             })?;
         }
-        let label =
-            if t.entity { volumes.get(&t.label).copied().unwrap_or(t.label) } else { t.label };
+        let via_entity = t.entity.and_then(|e| volumes.get(&e).copied());
+        let (label, what) = match (choice, t.physical.or(via_entity), t.entity) {
+            (GmshRegion::Physical, Some(tag), _) => {
+                physical = true;
+                (tag, "physical tag")
+            }
+            (_, _, Some(tag)) => {
+                geometrical = true;
+                (tag, "entity tag")
+            }
+            _ => (i64::from(DEFAULT_REGION), "default region"),
+        };
         let region = u32::try_from(label).map_err(|_| {
-            let what = if t.entity { "physical or entity tag" } else { "physical tag" };
             error_at(
                 name,
                 t.at,
@@ -170,6 +251,12 @@ fn assemble(
         })?;
         mesh.push_tet(tet, region, Origin { id: t.tag, at: t.at });
     }
+    mesh.region_source = match (physical, geometrical) {
+        (true, false) => Some("physical tags".to_owned()),
+        (true, true) => Some("physical tags (entity tags where a volume has none)".to_owned()),
+        (false, true) => Some("elementary entity tags".to_owned()),
+        (false, false) => None,
+    };
     mesh.vertices = nodes.coords;
     mesh.vertex_origins = nodes.origins;
     mesh.finish(name)
@@ -385,7 +472,7 @@ impl<'a> Gmsh<'a> {
     }
 
     /// MSH 2.2 `$Elements`: a count, then `tag type numTags tags… nodes…` lines.
-    fn elements_2(&mut self, tets: &mut Vec<GmshTet>) -> Result<(), IoError> {
+    fn elements_2(&mut self, tets: &mut GmshElements) -> Result<(), IoError> {
         let file = self.file;
         let (line, text) = self.data_line("Elements", || "the element count".to_owned())?;
         let count: usize = parse(file, line, Some(text), "the element count")?;
@@ -395,26 +482,29 @@ impl<'a> Gmsh<'a> {
             })?;
             let mut f = text.split_ascii_whitespace();
             let tag: u64 = parse(file, line, f.next(), "an element tag")?;
-            let kind: u64 = parse(file, line, f.next(), "an element type")?;
-            if kind != GMSH_TETRAHEDRON {
+            let kind: i64 = parse(file, line, f.next(), "an element type")?;
+            if kind != GMSH_TETRAHEDRON as i64 {
+                tets.skip(kind);
                 continue;
             }
             let tag_count: usize = parse(file, line, f.next(), "the number of tags")?;
-            let mut label = i64::from(DEFAULT_REGION);
+            let (mut physical, mut entity) = (None, None);
             for i in 0..tag_count {
                 let value: i64 = parse(file, line, f.next(), "an element tag")?;
-                if i == 0 {
-                    label = value;
+                match i {
+                    0 => physical = Some(value),
+                    1 => entity = Some(value),
+                    _ => {}
                 }
             }
             let nodes = self.tet_nodes(line, tag, f)?;
-            tets.push(GmshTet { tag, at: At::Line(line), nodes, label, entity: false });
+            tets.tets.push(GmshTet { tag, at: At::Line(line), nodes, physical, entity });
         }
         self.end("Elements")
     }
 
     /// MSH 4.1 `$Elements`: a header, then blocks of elements of one type and entity.
-    fn elements_41(&mut self, tets: &mut Vec<GmshTet>) -> Result<(), IoError> {
+    fn elements_41(&mut self, tets: &mut GmshElements) -> Result<(), IoError> {
         let file = self.file;
         let (header_line, text) = self.data_line("Elements", || {
             "the line `numEntityBlocks numElements minElementTag maxElementTag`".to_owned()
@@ -433,19 +523,21 @@ impl<'a> Gmsh<'a> {
             let mut f = text.split_ascii_whitespace();
             let _dim: u32 = parse(file, line, f.next(), "the entity dimension")?;
             let entity: i64 = parse(file, line, f.next(), "the entity tag")?;
-            let kind: u64 = parse(file, line, f.next(), "the element type")?;
+            let kind: i64 = parse(file, line, f.next(), "the element type")?;
             let count: usize = parse(file, line, f.next(), "the number of elements in the block")?;
             for k in 1..=count {
                 let (line, text) =
                     self.data_line("Elements", || format!("element {k} of {count} in block {b}"))?;
                 read += 1;
-                if kind != GMSH_TETRAHEDRON {
+                if kind != GMSH_TETRAHEDRON as i64 {
+                    tets.skip(kind);
                     continue;
                 }
                 let mut f = text.split_ascii_whitespace();
                 let tag: u64 = parse(file, line, f.next(), "an element tag")?;
                 let nodes = self.tet_nodes(line, tag, f)?;
-                tets.push(GmshTet { tag, at: At::Line(line), nodes, label: entity, entity: true });
+                let (physical, entity) = (None, Some(entity));
+                tets.tets.push(GmshTet { tag, at: At::Line(line), nodes, physical, entity });
             }
         }
         if read != total {
@@ -597,7 +689,12 @@ struct MshBinary<'a> {
 }
 
 /// Decodes binary MSH 4.1.
-fn decode_binary(bytes: &[u8], format: &BinaryFormat, name: &str) -> Result<TetMesh, IoError> {
+fn decode_binary(
+    bytes: &[u8],
+    format: &BinaryFormat,
+    name: &str,
+    region: GmshRegion,
+) -> Result<MeshFile, IoError> {
     let Ok(size_t @ (4 | 8)) = format.data_size.parse::<usize>() else {
         return Err(syntax(
             name,
@@ -622,7 +719,7 @@ fn decode_binary(bytes: &[u8], format: &BinaryFormat, name: &str) -> Result<TetM
     };
     r.end("MeshFormat")?;
     let mut nodes = GmshNodes::default();
-    let mut tets: Vec<GmshTet> = Vec::new();
+    let mut tets = GmshElements::default();
     let mut volumes: HashMap<i64, i64> = HashMap::new();
     let (mut saw_nodes, mut saw_elements) = (false, false);
     while let Some((at, text)) = r.header_line() {
@@ -653,7 +750,7 @@ fn decode_binary(bytes: &[u8], format: &BinaryFormat, name: &str) -> Result<TetM
             return Err(r.error_at(r.pos, format!("the file has no {section} section")));
         }
     }
-    assemble(name, nodes, tets, &volumes)
+    assemble(name, nodes, tets, &volumes, region)
 }
 
 impl<'a> MshBinary<'a> {
@@ -863,7 +960,7 @@ impl<'a> MshBinary<'a> {
     }
 
     /// `$Elements`: a header, then blocks of elements of one type and entity.
-    fn elements(&mut self, tets: &mut Vec<GmshTet>) -> Result<(), IoError> {
+    fn elements(&mut self, tets: &mut GmshElements) -> Result<(), IoError> {
         let size_t = self.size_t as u64;
         let header = self.pos;
         let blocks = self.count(12 + size_t, "element blocks", "$Elements")?;
@@ -895,12 +992,14 @@ impl<'a> MshBinary<'a> {
                 let what = format!("element {k} of {count} in block {b}");
                 if kind as u64 != GMSH_TETRAHEDRON {
                     self.take(self.size_t * (1 + per_element as usize), &what)?;
+                    tets.skip(kind.into());
                     continue;
                 }
                 let tag = self.size(&what)?;
                 let nodes =
                     [self.size(&what)?, self.size(&what)?, self.size(&what)?, self.size(&what)?];
-                tets.push(GmshTet { tag, at, nodes, label: entity.into(), entity: true });
+                let (physical, entity) = (None, Some(entity.into()));
+                tets.tets.push(GmshTet { tag, at, nodes, physical, entity });
             }
             read += count;
         }

@@ -16,9 +16,17 @@
 //! - MSH 2.2: the element's first tag (its physical tag), 1 when it has no tags;
 //! - MSH 4.1: the first physical tag of the element block's volume entity in `$Entities`, else
 //!   the entity tag itself;
-//! - VTK: the first integer cell-data array with one component (in `.vtk` a `SCALARS` array is
-//!   preferred to a `FIELD` array, in `.vtu` the array `CellData Scalars="…"` names is preferred
-//!   to the others), 1 when there is none.
+//! - VTK: the integer cell-data array with one component that [`MeshOptions::region`] names;
+//!   else the first of `gmsh:physical`, `medit:ref` and `CellEntityIds` (what meshio, Gmsh and
+//!   VTK's own filters call it) that the file has; else the first integer cell-data array with
+//!   one component (in `.vtk` a `SCALARS` array is preferred to a `FIELD` array, in `.vtu` the
+//!   array `CellData Scalars="…"` names is preferred to the others); 1 when there is none.
+//!   In Gmsh files `region = "gmsh:geometrical"` takes the elementary entity tag instead of the
+//!   physical tag (meshio's names for the two).
+//!
+//! [`read_tet_mesh_with`] also says where the regions came from and counts the cells it skipped
+//! by type, so a caller can tell its user that the file's boundary triangles were not lost by
+//! accident.
 //!
 //! Writers differ in orientation convention, so a tetrahedron with a negative signed volume has
 //! its last two vertices swapped; any other defect [`TetMesh::new`] finds (a degenerate
@@ -42,13 +50,17 @@ mod tests;
 mod vtk;
 mod vtu;
 
-pub use gmsh::{decode_gmsh, encode_gmsh22, encode_gmsh41_binary};
-pub use vtk::{VtkCells, decode_vtk_legacy, encode_vtk_legacy, encode_vtk_legacy_binary};
-pub use vtu::{VtuBinary, VtuData, decode_vtu, encode_vtu, encode_vtu_binary};
+pub use gmsh::{decode_gmsh, decode_gmsh_with, encode_gmsh22, encode_gmsh41_binary};
+pub use vtk::{
+    VtkCells, decode_vtk_legacy, decode_vtk_legacy_with, encode_vtk_legacy,
+    encode_vtk_legacy_binary,
+};
+pub use vtu::{VtuBinary, VtuData, decode_vtu, decode_vtu_with, encode_vtu, encode_vtu_binary};
 
 use crate::error::{IoError, grouped};
 use incise_mesh::TetMesh;
 use incise_mesh::{TetMeshError, signed_volume};
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::str::FromStr;
 
@@ -59,15 +71,69 @@ const VTK_TETRA: i64 = 10;
 /// Region label of tetrahedra whose file gives none.
 const DEFAULT_REGION: u32 = 1;
 
+/// How to read a tetrahedral mesh file.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct MeshOptions {
+    /// The cell-data array that holds each tetrahedron's region (VTK), or `"gmsh:physical"`
+    /// (the default) or `"gmsh:geometrical"` (Gmsh). `None` picks as the module doc says; a name
+    /// the file does not have is an error listing the arrays it does have.
+    pub region: Option<String>,
+}
+
+/// A tetrahedral mesh file as read: the mesh, where its regions came from, and what was skipped.
+#[derive(Clone, Debug)]
+pub struct MeshFile {
+    /// The tetrahedra, positively oriented, with their regions.
+    pub mesh: TetMesh,
+    /// Where the regions came from (`cell array "gmsh:physical"`, `physical tags`, …); `None`
+    /// when the file gives none and every tetrahedron is in region 1.
+    pub region_source: Option<String>,
+    /// The cells that are not 4-node tetrahedra and were skipped: how many of each type, by
+    /// type name, in name order.
+    pub skipped: Vec<(String, usize)>,
+}
+
+impl MeshFile {
+    /// How many cells were skipped.
+    #[must_use]
+    pub fn skipped_cells(&self) -> usize {
+        self.skipped.iter().map(|(_, n)| n).sum()
+    }
+
+    /// A sentence for the user about the skipped cells, `None` when there were none.
+    #[must_use]
+    pub fn skipped_note(&self) -> Option<String> {
+        let total = self.skipped_cells();
+        (total > 0).then(|| {
+            let kinds: Vec<String> = self
+                .skipped
+                .iter()
+                .map(|(kind, n)| format!("{} {kind}", grouped(*n as u64)))
+                .collect();
+            format!(
+                "skipped {} cells that are not tetrahedra ({})",
+                grouped(total as u64),
+                kinds.join(", ")
+            )
+        })
+    }
+}
+
 /// Reads a tetrahedral mesh, choosing the format by extension: `.msh` (Gmsh MSH 2.2 or 4.1),
 /// `.vtk` (legacy VTK) or `.vtu` (VTK XML), in any letter case.
 pub fn read_tet_mesh(path: &Path) -> Result<TetMesh, IoError> {
+    read_tet_mesh_with(path, &MeshOptions::default()).map(|file| file.mesh)
+}
+
+/// Reads a tetrahedral mesh as [`read_tet_mesh`] does, with `options`, and says where its
+/// regions came from and what it skipped.
+pub fn read_tet_mesh_with(path: &Path, options: &MeshOptions) -> Result<MeshFile, IoError> {
     let file = path.display().to_string();
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    let decode: fn(&[u8], &str) -> Result<TetMesh, IoError> = match ext.as_deref() {
-        Some("msh") => decode_gmsh,
-        Some("vtk") => decode_vtk_legacy,
-        Some("vtu") => decode_vtu,
+    let decode: fn(&[u8], &str, &MeshOptions) -> Result<MeshFile, IoError> = match ext.as_deref() {
+        Some("msh") => decode_gmsh_with,
+        Some("vtk") => decode_vtk_legacy_with,
+        Some("vtu") => decode_vtu_with,
         _ => {
             return Err(IoError::UnsupportedType {
                 file,
@@ -78,7 +144,60 @@ pub fn read_tet_mesh(path: &Path) -> Result<TetMesh, IoError> {
         }
     };
     let bytes = std::fs::read(path).map_err(|source| IoError::Io { file: file.clone(), source })?;
-    decode(&bytes, &file)
+    decode(&bytes, &file, options)
+}
+
+/// Cell-data arrays that hold regions by convention, the most specific first: meshio's name for
+/// Gmsh physical groups, its name for Medit references, and VTK's (and `ParaView`'s) name.
+const REGION_ARRAYS: [&str; 3] = ["gmsh:physical", "medit:ref", "CellEntityIds"];
+
+/// How strongly a cell-data array named `name` claims to hold the regions, higher first; `None`
+/// when it is not a candidate at all (another array was asked for). `hint` ranks the arrays no
+/// convention names: 1 for the array the file marks as its scalars, 0 for the others.
+fn region_rank(name: &str, hint: u8, wanted: Option<&str>) -> Option<u8> {
+    match wanted {
+        Some(wanted) => (name == wanted).then_some(u8::MAX),
+        None => Some(
+            REGION_ARRAYS
+                .iter()
+                .position(|&known| known == name)
+                .map_or(hint, |i| (2 + REGION_ARRAYS.len() - i) as u8),
+        ),
+    }
+}
+
+/// The error for an array `wanted` names that cannot hold regions.
+fn unusable_region_array(file: &str, name: &str, kind: &str, components: usize) -> IoError {
+    IoError::RegionArray {
+        file: file.to_owned(),
+        what: format!(
+            "cell array {name:?} is {kind} with {components} component(s); regions must be one \
+             integer per cell"
+        ),
+    }
+}
+
+/// The VTK name of a cell type, for the note on skipped cells.
+fn vtk_cell_name(kind: i64) -> String {
+    match kind {
+        1 => "vertex".to_owned(),
+        2 => "poly-vertex".to_owned(),
+        3 => "line".to_owned(),
+        4 => "poly-line".to_owned(),
+        5 => "triangle".to_owned(),
+        6 => "triangle strip".to_owned(),
+        7 => "polygon".to_owned(),
+        8 => "pixel".to_owned(),
+        9 => "quad".to_owned(),
+        11 => "voxel".to_owned(),
+        12 => "hexahedron".to_owned(),
+        13 => "wedge".to_owned(),
+        14 => "pyramid".to_owned(),
+        21 => "quadratic line".to_owned(),
+        22 => "quadratic triangle".to_owned(),
+        24 => "quadratic tetrahedron".to_owned(),
+        other => format!("type-{other} cell"),
+    }
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -167,6 +286,10 @@ struct Assembly {
     tets: Vec<[u32; 4]>,
     tet_origins: Vec<Origin>,
     regions: Vec<u32>,
+    /// Skipped cells by type name.
+    skipped: BTreeMap<String, usize>,
+    /// Where the regions came from, once known.
+    region_source: Option<String>,
 }
 
 impl Assembly {
@@ -179,7 +302,14 @@ impl Assembly {
             tets: Vec::new(),
             tet_origins: Vec::new(),
             regions: Vec::new(),
+            skipped: BTreeMap::new(),
+            region_source: None,
         }
+    }
+
+    /// Counts a skipped cell of type `kind`.
+    fn skip(&mut self, kind: String) {
+        *self.skipped.entry(kind).or_default() += 1;
     }
 
     fn push_tet(&mut self, tet: [u32; 4], region: u32, origin: Origin) {
@@ -189,7 +319,7 @@ impl Assembly {
     }
 
     /// Orients every tetrahedron positively and checks the mesh.
-    fn finish(self, file: &str) -> Result<TetMesh, IoError> {
+    fn finish(self, file: &str) -> Result<MeshFile, IoError> {
         let Self {
             vertex_noun,
             tet_noun,
@@ -198,6 +328,8 @@ impl Assembly {
             mut tets,
             tet_origins,
             regions,
+            skipped,
+            region_source,
         } = self;
         for tet in &mut tets {
             if let [Some(a), Some(b), Some(c), Some(d)] =
@@ -207,7 +339,7 @@ impl Assembly {
                 tet.swap(2, 3);
             }
         }
-        TetMesh::new(vertices, tets, regions).map_err(|source| {
+        let mesh = TetMesh::new(vertices, tets, regions).map_err(|source| {
             let name = |noun: &str, origin: Option<&Origin>| {
                 origin.map(|o| format!("{}: {noun} {}", o.at, o.id))
             };
@@ -225,7 +357,8 @@ impl Assembly {
                 TetMeshError::Empty | TetMeshError::RegionCount { .. } => None,
             };
             IoError::Mesh { file: file.to_owned(), at, source }
-        })
+        })?;
+        Ok(MeshFile { mesh, region_source, skipped: skipped.into_iter().collect() })
     }
 }
 
@@ -273,6 +406,52 @@ struct Labels {
     ats: Vec<At>,
 }
 
+/// A cell-data array chosen as the regions: its values, its name and its rank
+/// ([`region_rank`]).
+#[derive(Debug)]
+struct RegionArray {
+    labels: Labels,
+    name: String,
+    rank: u8,
+}
+
+impl RegionArray {
+    /// Keeps `candidate` in `slot` when it ranks above what is there (the first of equals wins).
+    fn offer(slot: &mut Option<Self>, candidate: Self) {
+        if slot.as_ref().is_none_or(|kept| candidate.rank > kept.rank) {
+            *slot = Some(candidate);
+        }
+    }
+
+    /// Whether an array of rank `rank` would replace what `slot` holds.
+    fn wanted(slot: Option<&Self>, rank: u8) -> bool {
+        slot.is_none_or(|kept| rank > kept.rank)
+    }
+}
+
+/// Checks that the array `wanted` names was found among the cell arrays `seen`.
+fn check_wanted(
+    file: &str,
+    wanted: Option<&str>,
+    found: bool,
+    seen: &[String],
+) -> Result<(), IoError> {
+    match wanted {
+        Some(name) if !found => Err(IoError::RegionArray {
+            file: file.to_owned(),
+            what: if seen.is_empty() {
+                format!("the scene names {name:?}, but the file has no cell-data arrays")
+            } else {
+                format!(
+                    "the scene names {name:?}, but the file's cell-data arrays are {}",
+                    seen.iter().map(|s| format!("{s:?}")).collect::<Vec<_>>().join(", ")
+                )
+            },
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// VTK cells as read: where each starts in the connectivity, its type and its region label.
 struct CellBlock {
     /// Start of each cell in `connectivity`, plus its end: one more entry than cells,
@@ -301,6 +480,7 @@ impl CellBlock {
     ) -> Result<(), IoError> {
         for (i, &kind) in self.types.iter().enumerate() {
             if kind != VTK_TETRA {
+                mesh.skip(vtk_cell_name(kind));
                 continue;
             }
             let cell = first_cell + i;

@@ -8,7 +8,8 @@
 
 use super::binary::{Scalar, Value};
 use super::{
-    Assembly, At, BOM, CellBlock, Labels, Origin, error_at, is_integer_type, shown, syntax,
+    Assembly, At, BOM, CellBlock, Labels, MeshFile, MeshOptions, Origin, RegionArray, check_wanted,
+    error_at, is_integer_type, region_rank, shown, syntax, unusable_region_array,
 };
 use crate::error::{IoError, grouped};
 use incise_mesh::TetMesh;
@@ -23,6 +24,38 @@ enum Attach {
     Points(usize),
     /// `CELL_DATA n`.
     Cells(usize),
+}
+
+/// The search for the region array among the cell-data arrays.
+struct Regions<'w> {
+    /// The array the caller named.
+    wanted: Option<&'w str>,
+    /// The best candidate so far.
+    found: Option<RegionArray>,
+    /// The names of the cell-data arrays seen.
+    seen: Vec<String>,
+}
+
+impl Regions<'_> {
+    /// Notes a cell-data array and returns the rank at which to keep it, `None` to skip it.
+    /// `hint` is 1 for `SCALARS`, 0 for `FIELD` arrays. An array `wanted` names that cannot
+    /// hold regions is an error.
+    fn consider(
+        &mut self,
+        file: &str,
+        name: &str,
+        kind: &str,
+        components: usize,
+        hint: u8,
+    ) -> Result<Option<u8>, IoError> {
+        self.seen.push(name.to_owned());
+        let usable = components == 1 && is_integer_type(kind);
+        if !usable && self.wanted == Some(name) {
+            return Err(unusable_region_array(file, name, kind, components));
+        }
+        Ok(region_rank(name, hint, self.wanted)
+            .filter(|&rank| usable && RegionArray::wanted(self.found.as_ref(), rank)))
+    }
 }
 
 /// A legacy VTK file being read, token by token and, in a binary file, value by value.
@@ -354,7 +387,7 @@ impl<'a> Vtk<'a> {
     }
 
     /// `SCALARS name type [numComp]` (after the keyword), its `LOOKUP_TABLE` line and its values.
-    fn scalars(&mut self, attach: Attach, found: &mut Option<Labels>) -> Result<(), IoError> {
+    fn scalars(&mut self, attach: Attach, regions: &mut Regions) -> Result<(), IoError> {
         let (name, at) = self.token(|| "the name of a SCALARS array".to_owned())?;
         let (kind, _) = self.token(|| format!("the data type of SCALARS {name}"))?;
         let mut components = 1usize;
@@ -370,18 +403,19 @@ impl<'a> Vtk<'a> {
         let count = tuples
             .checked_mul(components)
             .ok_or_else(|| self.error(at, format!("SCALARS {name} announces too many values")))?;
-        let keep = matches!(attach, Attach::Cells(_))
-            && components == 1
-            && is_integer_type(&kind)
-            && found.is_none();
-        if let Some(labels) = self.array(count, &kind, keep, &name)? {
-            *found = Some(labels);
+        let rank = match attach {
+            Attach::Cells(_) => regions.consider(self.file, &name, &kind, components, 1)?,
+            _ => None,
+        };
+        if let Some(labels) = self.array(count, &kind, rank.is_some(), &name)? {
+            let (name, rank) = (name.into_owned(), rank.unwrap_or_default());
+            RegionArray::offer(&mut regions.found, RegionArray { labels, name, rank });
         }
         Ok(())
     }
 
     /// `FIELD name numArrays` (after the keyword) and its arrays.
-    fn field(&mut self, attach: Attach, found: &mut Option<Labels>) -> Result<(), IoError> {
+    fn field(&mut self, attach: Attach, regions: &mut Regions) -> Result<(), IoError> {
         let (name, _) = self.token(|| "the name of a FIELD".to_owned())?;
         let (arrays, _) =
             self.value::<usize>(|| format!("the number of arrays of FIELD {name}"))?;
@@ -396,12 +430,15 @@ impl<'a> Vtk<'a> {
             let count = components.checked_mul(tuples).ok_or_else(|| {
                 self.error(at, format!("array {array} announces too many values"))
             })?;
-            let keep = matches!(attach, Attach::Cells(n) if n == tuples)
-                && components == 1
-                && is_integer_type(&kind)
-                && found.is_none();
-            if let Some(labels) = self.array(count, &kind, keep, &array)? {
-                *found = Some(labels);
+            let rank = match attach {
+                Attach::Cells(n) if n == tuples => {
+                    regions.consider(self.file, &array, &kind, components, 0)?
+                }
+                _ => None,
+            };
+            if let Some(labels) = self.array(count, &kind, rank.is_some(), &array)? {
+                let (name, rank) = (array.into_owned(), rank.unwrap_or_default());
+                RegionArray::offer(&mut regions.found, RegionArray { labels, name, rank });
             }
             if self.peek().is_some_and(|t| t.eq_ignore_ascii_case("METADATA")) {
                 self.next_token();
@@ -507,6 +544,15 @@ fn vtk_header(bytes: &[u8], file: &str) -> Result<(bool, usize), IoError> {
 /// Decodes a legacy VTK `DATASET UNSTRUCTURED_GRID`, ASCII or `BINARY` (big-endian, as VTK
 /// writes it), classic or VTK 5 cell layout. `name` names the bytes in errors.
 pub fn decode_vtk_legacy(bytes: &[u8], name: &str) -> Result<TetMesh, IoError> {
+    decode_vtk_legacy_with(bytes, name, &MeshOptions::default()).map(|file| file.mesh)
+}
+
+/// Decodes a legacy VTK file as [`decode_vtk_legacy`] does, with `options`.
+pub fn decode_vtk_legacy_with(
+    bytes: &[u8],
+    name: &str,
+    options: &MeshOptions,
+) -> Result<MeshFile, IoError> {
     let bytes = bytes.strip_prefix(BOM).unwrap_or(bytes);
     let (binary, body) = vtk_header(bytes, name)?;
     let mut r = Vtk { file: name, bytes, pos: body, line: 4, binary, data: None };
@@ -523,7 +569,7 @@ pub fn decode_vtk_legacy(bytes: &[u8], name: &str) -> Result<TetMesh, IoError> {
     let mut types: Option<(Vec<i64>, At)> = None;
     let mut cell_data: Option<(usize, At)> = None;
     let mut attach = Attach::None;
-    let (mut scalars, mut field) = (None, None);
+    let mut regions = Regions { wanted: options.region.as_deref(), found: None, seen: Vec::new() };
     let twice =
         |at: At, section: &str| Err(error_at(name, at, format!("a second {section} section")));
     while let Some((token, at)) = r.next_token() {
@@ -553,9 +599,9 @@ pub fn decode_vtk_legacy(bytes: &[u8], name: &str) -> Result<TetMesh, IoError> {
             attach = Attach::Cells(count);
             cell_data = Some((count, at));
         } else if is("SCALARS") {
-            r.scalars(attach, &mut scalars)?;
+            r.scalars(attach, &mut regions)?;
         } else if is("FIELD") {
-            r.field(attach, &mut field)?;
+            r.field(attach, &mut regions)?;
         } else if is("METADATA") {
             r.skip_past_blank_line();
         } else if binary {
@@ -587,9 +633,14 @@ pub fn decode_vtk_legacy(bytes: &[u8], name: &str) -> Result<TetMesh, IoError> {
         ));
     }
     block.types = types;
-    block.labels = scalars.or(field);
-
+    let found_wanted =
+        regions.found.as_ref().is_some_and(|r| Some(r.name.as_str()) == regions.wanted);
+    check_wanted(name, regions.wanted, found_wanted, &regions.seen)?;
     let mut mesh = Assembly::new("point", "cell");
+    if let Some(array) = regions.found {
+        mesh.region_source = Some(format!("cell array {:?}", array.name));
+        block.labels = Some(array.labels);
+    }
     block.append_tets(name, coords.len(), 0, 0, &mut mesh)?;
     mesh.vertex_origins =
         point_ats.iter().enumerate().map(|(i, &at)| Origin { id: i as u64, at }).collect();

@@ -9,8 +9,9 @@
 use super::binary::{Base64, Scalar, Value, base64_encode, read_unsigned};
 use super::vtk::region_type_fits_i32;
 use super::{
-    Assembly, At, BOM, CellBlock, Labels, Origin, Tokens, error_at, find_bytes, is_integer_type,
-    parse, shown, syntax,
+    Assembly, At, BOM, CellBlock, Labels, MeshFile, MeshOptions, Origin, RegionArray, Tokens,
+    check_wanted, error_at, find_bytes, is_integer_type, parse, region_rank, shown, syntax,
+    unusable_region_array,
 };
 use crate::error::{IoError, grouped};
 use flate2::read::ZlibDecoder;
@@ -145,10 +146,9 @@ enum Role {
     Connectivity,
     Offsets,
     Types,
-    /// An integer cell array, a region label candidate; `preferred` when `CellData Scalars`
-    /// names it.
+    /// An integer cell array, a region label candidate of this rank ([`region_rank`]).
     Labels {
-        preferred: bool,
+        rank: u8,
     },
 }
 
@@ -188,7 +188,7 @@ struct Piece<'a> {
     connectivity: Option<Vec<i64>>,
     offsets: Option<Labels>,
     types: Option<Vec<i64>>,
-    labels: Option<(Labels, bool)>,
+    labels: Option<RegionArray>,
 }
 
 /// Decodes a VTK XML `UnstructuredGrid` (`.vtu`), all pieces. Data arrays may be ASCII,
@@ -196,13 +196,28 @@ struct Piece<'a> {
 /// (`vtkZLibDataCompressor`), with `UInt32` or `UInt64` headers in either byte order. `name`
 /// names the bytes in errors.
 pub fn decode_vtu(bytes: &[u8], name: &str) -> Result<TetMesh, IoError> {
-    let bytes = bytes.strip_prefix(BOM).unwrap_or(bytes);
-    let (text, appended) = split_appended(bytes, name)?;
-    decode_xml(&text, appended, name)
+    decode_vtu_with(bytes, name, &MeshOptions::default()).map(|file| file.mesh)
 }
 
-/// Decodes the XML of a `.vtu` file, its appended data cut out.
-fn decode_xml(text: &str, appended: Option<Appended>, name: &str) -> Result<TetMesh, IoError> {
+/// Decodes a `.vtu` as [`decode_vtu`] does, with `options`.
+pub fn decode_vtu_with(
+    bytes: &[u8],
+    name: &str,
+    options: &MeshOptions,
+) -> Result<MeshFile, IoError> {
+    let bytes = bytes.strip_prefix(BOM).unwrap_or(bytes);
+    let (text, appended) = split_appended(bytes, name)?;
+    decode_xml(&text, appended, name, options.region.as_deref())
+}
+
+/// Decodes the XML of a `.vtu` file, its appended data cut out; `wanted` names the region
+/// array.
+fn decode_xml(
+    text: &str,
+    appended: Option<Appended>,
+    name: &str,
+    wanted: Option<&str>,
+) -> Result<MeshFile, IoError> {
     let mut xml = Xml { file: name, text, pos: 0, line: 1 };
     let mut encoding = Encoding { appended, ..Encoding::default() };
     let mut stack: Vec<&str> = Vec::new();
@@ -211,6 +226,8 @@ fn decode_xml(text: &str, appended: Option<Appended>, name: &str) -> Result<TetM
     let mut pieces = 0usize;
     let mut piece: Option<Piece> = None;
     let mut array: Option<DataArray> = None;
+    let mut cell_arrays: Vec<String> = Vec::new();
+    let mut found_wanted = false;
     while let Some((markup, line)) = xml.next()? {
         match markup {
             Markup::Open { name: tag, attrs, empty } => {
@@ -260,7 +277,17 @@ fn decode_xml(text: &str, appended: Option<Appended>, name: &str) -> Result<TetM
                         }
                     }
                     (Some(parent), "DataArray") if array.is_none() => {
-                        let role = piece.as_ref().and_then(|p| role_of(parent, attrs, p));
+                        if parent == "CellData" {
+                            let array_name = attr(attrs, "Name").unwrap_or("");
+                            if !cell_arrays.iter().any(|a| a == array_name) {
+                                cell_arrays.push(array_name.to_owned());
+                            }
+                            found_wanted |= wanted == Some(array_name);
+                        }
+                        let role = match &piece {
+                            Some(p) => role_of(name, parent, attrs, p, wanted)?,
+                            None => None,
+                        };
                         if let Some(role) = role {
                             let a = DataArray {
                                 role,
@@ -319,24 +346,40 @@ fn decode_xml(text: &str, appended: Option<Appended>, name: &str) -> Result<TetM
     if pieces == 0 {
         return Err(syntax(name, xml.line, "the file has no <UnstructuredGrid><Piece>"));
     }
+    check_wanted(name, wanted, found_wanted, &cell_arrays)?;
     mesh.finish(name)
 }
 
-/// What a `DataArray` under `parent` with `attrs` holds, if this reader needs it.
-fn role_of(parent: &str, attrs: &str, piece: &Piece) -> Option<Role> {
-    match (parent, attr(attrs, "Name")) {
+/// What a `DataArray` under `parent` with `attrs` holds, if this reader needs it; `wanted`
+/// names the region array. An array `wanted` names that cannot hold regions is an error.
+fn role_of(
+    file: &str,
+    parent: &str,
+    attrs: &str,
+    piece: &Piece,
+    wanted: Option<&str>,
+) -> Result<Option<Role>, IoError> {
+    Ok(match (parent, attr(attrs, "Name")) {
         ("Points", _) if piece.coords.is_none() => Some(Role::Points),
         ("Cells", Some("connectivity")) => Some(Role::Connectivity),
         ("Cells", Some("offsets")) => Some(Role::Offsets),
         ("Cells", Some("types")) => Some(Role::Types),
         ("CellData", name) => {
-            let integer = attr(attrs, "type").is_some_and(is_integer_type);
-            let single = attr(attrs, "NumberOfComponents").is_none_or(|n| n.trim() == "1");
-            let preferred = name.is_some() && name == piece.scalars;
-            (integer && single).then_some(Role::Labels { preferred })
+            let name = name.unwrap_or("");
+            let kind = attr(attrs, "type").unwrap_or("");
+            let components = attr(attrs, "NumberOfComponents").unwrap_or("1").trim();
+            let usable = is_integer_type(kind) && components == "1";
+            if !usable && wanted == Some(name) {
+                let components = components.parse().unwrap_or(0);
+                return Err(unusable_region_array(file, name, kind, components));
+            }
+            let hint = u8::from(Some(name) == piece.scalars);
+            region_rank(name, hint, wanted)
+                .filter(|&rank| usable && RegionArray::wanted(piece.labels.as_ref(), rank))
+                .map(|rank| Role::Labels { rank })
         }
         _ => None,
-    }
+    })
 }
 
 /// The `DataArray`'s `format`.
@@ -702,15 +745,10 @@ fn finish_array(
                 Role::Connectivity => piece.connectivity = Some(values.values),
                 Role::Offsets => piece.offsets = Some(values),
                 Role::Types => piece.types = Some(values.values),
-                Role::Labels { preferred } => {
-                    let replace = match &piece.labels {
-                        None => true,
-                        Some((_, was_preferred)) => preferred && !was_preferred,
-                    };
-                    if replace {
-                        piece.labels = Some((values, preferred));
-                    }
-                }
+                Role::Labels { rank } => RegionArray::offer(
+                    &mut piece.labels,
+                    RegionArray { labels: values, name: label.to_owned(), rank },
+                ),
                 Role::Points => {}
             }
         }
@@ -768,10 +806,14 @@ fn finish_piece(
             return Err(count_error("types", types.len()));
         }
         let labels = match piece.labels {
-            Some((labels, _)) if labels.values.len() != n => {
-                return Err(count_error("region label", labels.values.len()));
+            Some(array) if array.labels.values.len() != n => {
+                return Err(count_error("region label", array.labels.values.len()));
             }
-            other => other.map(|(labels, _)| labels),
+            Some(array) => {
+                mesh.region_source.get_or_insert_with(|| format!("cell array {:?}", array.name));
+                Some(array.labels)
+            }
+            None => None,
         };
         let mut starts = vec![0usize];
         for (k, (&offset, &at)) in offsets.values.iter().zip(&offsets.ats).enumerate() {

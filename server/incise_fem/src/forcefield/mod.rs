@@ -1,8 +1,10 @@
 //! Force fields: what computes internal forces and their Jacobian. [`hex`] holds the linear and
-//! corotational hexahedra of the branched grid, [`tet`] paper 2's tensor-mass tetrahedra; both
-//! reach the integrators through the [`ForceField`] trait, and so will a tool's contact.
+//! corotational hexahedra of the branched grid, [`tet`] paper 2's tensor-mass tetrahedra,
+//! [`springs`] the springs on embedded points that a tool's contact and grasp are made of; all
+//! reach the integrators through the [`ForceField`] trait.
 
 pub mod hex;
+pub mod springs;
 pub mod tet;
 
 use crate::model::HexModel;
@@ -21,12 +23,15 @@ use incise_math::mat3::Mat3;
 /// A field is linearised at the positions of its last [`ForceField::update`]: an integrator calls
 /// it once per step (or Newton iteration) before asking for forces or products.
 ///
-/// A field is a view of its model (`HexForceField::bind`, `TensorMassForceField::bind`), made
-/// for a step. A topology change (a cut) happens between steps, on the model and the field that
-/// own the data: the hexahedral field is remapped to the new model, keeping the rotations and
-/// permuted matrices of the elements the cut left alone (`HexForceField::remapped`); the
-/// tensor-mass field subtracts the removed tetrahedra's terms (`TensorMassForceField::remove_tet`);
-/// the state follows (`State::across_cut`); the next step binds the updated field again.
+/// The elastic fields are views of their model (`HexForceField::bind`,
+/// `TensorMassForceField::bind`), made for a step. A topology change (a cut) changes the model
+/// and the field that own the data: the hexahedral field is remapped to the new model, keeping
+/// the rotations and permuted matrices of the elements the cut left alone
+/// (`HexForceField::remapped`); the tensor-mass field subtracts the removed tetrahedra's terms
+/// (`TensorMassForceField::remove_tet`); the state follows (`State::across_cut`); the view is
+/// bound again. A field that holds node indices of its own across the change (a tool's contact
+/// springs, found before a cut in the same step) is told through
+/// [`ForceField::topology_changed`].
 pub trait ForceField: Sync {
     /// Prepares evaluations at positions `x`: what the Jacobian depends on (element rotations,
     /// which tetrahedra are non-linear) is taken there.
@@ -62,5 +67,38 @@ pub trait ForceField: Sync {
     /// on it (the two-thread lockstep CG, sparse Cholesky); `None` for every other field.
     fn hexahedra(&self) -> Option<(&HexModel, &hex::HexForceField)> {
         None
+    }
+
+    /// The model's nodes were renumbered by a cut: the field moves whatever it keeps per node to
+    /// the new numbering. The elastic views keep nothing of their own (they borrow the model,
+    /// which the borrow checker keeps unchanged while they live), so the default does nothing;
+    /// [`springs::EmbeddedSprings`] follows its nodes.
+    fn topology_changed(&mut self, change: &TopologyChange<'_>) {
+        let _ = change;
+    }
+}
+
+/// How a cut renumbered the model's nodes, as a field that keeps node indices sees it.
+#[derive(Clone, Copy, Debug)]
+pub struct TopologyChange<'a> {
+    /// For each node before the change, its index after it (`None`: it did not survive).
+    pub new_of_old: &'a [Option<u32>],
+}
+
+impl TopologyChange<'_> {
+    /// The inverse of the new nodes' origins (`old_of_new`, as [`crate::model::CarriedState`]
+    /// gives them) over `old_count` old nodes. Where several new nodes came from one old node (a
+    /// node split by the cut), the old node maps to the first of them.
+    #[must_use]
+    pub fn invert(old_of_new: &[Option<usize>], old_count: usize) -> Vec<Option<u32>> {
+        let mut new_of_old = vec![None; old_count];
+        for (new, old) in old_of_new.iter().enumerate() {
+            if let Some(slot) = old.and_then(|o| new_of_old.get_mut(o))
+                && slot.is_none()
+            {
+                *slot = Some(new as u32);
+            }
+        }
+        new_of_old
     }
 }

@@ -1,0 +1,18 @@
+//! Surgical tools (Jeřábková 2010, §3): a rigid pose carrying an outer shape that pushes the
+//! tissue and an inner shape that cuts it.
+//!
+//! - [`pose`]: checked poses (finite, unit quaternion), frames, interpolation;
+//! - [`shape`]: analytic shapes by signed distance (sphere, capsule, cuboid, blade);
+//! - [`contact`]: penalty contact of the outer shape with the surface, as springs on embedded
+//!   points (a force field of `incise_fem`), swept so a fast tool does not tunnel, and its
+//!   linearisation with respect to the pose for the haptic loop.
+//!
+//! Pure: data in, data out; no files, threads or clocks.
+
+pub mod contact;
+pub mod pose;
+pub mod shape;
+
+pub use contact::{Contact, ContactSettings, Linearisation, SurfacePoint};
+pub use pose::{Pose, PoseError, ToolPose};
+pub use shape::{Primitive, Shape, ShapeError};

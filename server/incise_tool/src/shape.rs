@@ -1,0 +1,283 @@
+//! A tool's shapes, in the tool frame: analytic primitives given by their signed distance.
+//!
+//! Contact needs, for a point, how deep it is inside a shape and which way is out: the signed
+//! distance `φ` (negative inside) and its gradient, the outward unit normal. The primitives
+//! here have both in closed form. Conventions follow a laparoscopic instrument: the tip at the
+//! tool frame's origin, the shaft along `+z`; each shape may be offset within the frame, so an
+//! inner (cutting) shape sits where the blade's edge is inside the outer (repulsion) shape.
+
+use incise_math::Vec3;
+
+/// An analytic primitive in its own frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Primitive {
+    /// A ball of `radius` (m) about the origin.
+    Sphere {
+        /// Radius (m).
+        radius: f64,
+    },
+    /// The points within `radius` of the segment from the origin to `(0, 0, length)`: a rounded
+    /// shaft whose tip is at the origin.
+    Capsule {
+        /// Radius (m).
+        radius: f64,
+        /// Length of the axis (m).
+        length: f64,
+    },
+    /// An axis-aligned box about the origin.
+    Cuboid {
+        /// Half the edge lengths (m).
+        half_extents: Vec3,
+    },
+    /// A flat blade: a box `length` along x, `thickness` along y, `height` along z, whose cutting
+    /// edge is the segment at `z = 0` (it rises along `+z` from its edge); its mid-plane `y = 0`
+    /// is the surface that separates in separation mode.
+    Blade {
+        /// Edge length (m).
+        length: f64,
+        /// Height above the edge (m).
+        height: f64,
+        /// Thickness (m).
+        thickness: f64,
+    },
+}
+
+/// Why a shape was refused.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{what}")]
+pub struct ShapeError {
+    /// What is wrong.
+    pub what: String,
+}
+
+/// A primitive placed in the tool frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shape {
+    primitive: Primitive,
+    /// Where the primitive's origin is in the tool frame (m).
+    offset: Vec3,
+}
+
+impl Shape {
+    /// `primitive` with its origin at `offset` in the tool frame; every size must be finite and
+    /// positive.
+    pub fn new(primitive: Primitive, offset: Vec3) -> Result<Self, ShapeError> {
+        let sizes: Vec<(&str, f64)> = match primitive {
+            Primitive::Sphere { radius } => vec![("radius", radius)],
+            Primitive::Capsule { radius, length } => vec![("radius", radius), ("length", length)],
+            Primitive::Cuboid { half_extents } => {
+                half_extents.iter().map(|&h| ("half extent", h)).collect()
+            }
+            Primitive::Blade { length, height, thickness } => {
+                vec![("length", length), ("height", height), ("thickness", thickness)]
+            }
+        };
+        for (name, value) in sizes {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(ShapeError {
+                    what: format!("{name} is {value}; it must be a finite length > 0 m"),
+                });
+            }
+        }
+        if !offset.iter().all(|c| c.is_finite()) {
+            return Err(ShapeError { what: format!("offset {offset:?} is not finite") });
+        }
+        Ok(Self { primitive, offset })
+    }
+
+    /// The primitive.
+    #[must_use]
+    pub fn primitive(&self) -> Primitive {
+        self.primitive
+    }
+
+    /// The signed distance (m, negative inside) of tool-frame point `q`, and the outward unit
+    /// normal there (the distance's gradient; on the medial axis of a box, the nearest face's).
+    #[must_use]
+    pub fn distance(&self, q: Vec3) -> (f64, Vec3) {
+        let p: Vec3 = std::array::from_fn(|k| q[k] - self.offset[k]);
+        match self.primitive {
+            Primitive::Sphere { radius } => ball(p, radius),
+            Primitive::Capsule { radius, length } => {
+                ball([p[0], p[1], p[2] - p[2].clamp(0.0, length)], radius)
+            }
+            Primitive::Cuboid { half_extents } => cuboid(p, half_extents),
+            Primitive::Blade { length, height, thickness } => cuboid(
+                [p[0], p[1], p[2] - 0.5 * height],
+                [0.5 * length, 0.5 * thickness, 0.5 * height],
+            ),
+        }
+    }
+
+    /// The shape's bounding box in the tool frame, `(min, max)`.
+    #[must_use]
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let (lo, hi) = match self.primitive {
+            Primitive::Sphere { radius } => ([-radius; 3], [radius; 3]),
+            Primitive::Capsule { radius, length } => {
+                ([-radius, -radius, -radius], [radius, radius, length + radius])
+            }
+            Primitive::Cuboid { half_extents } => (half_extents.map(|h| -h), half_extents),
+            Primitive::Blade { length, height, thickness } => {
+                ([-0.5 * length, -0.5 * thickness, 0.0], [0.5 * length, 0.5 * thickness, height])
+            }
+        };
+        (
+            std::array::from_fn(|k| lo[k] + self.offset[k]),
+            std::array::from_fn(|k| hi[k] + self.offset[k]),
+        )
+    }
+
+    /// The shape's thinnest dimension (m): a moving tool is tested for crossing points at
+    /// sub-steps shorter than half of it, so that nothing passes through it between two tests.
+    #[must_use]
+    pub fn thinnest(&self) -> f64 {
+        match self.primitive {
+            Primitive::Sphere { radius } | Primitive::Capsule { radius, .. } => 2.0 * radius,
+            Primitive::Cuboid { half_extents } => {
+                2.0 * half_extents.iter().copied().fold(f64::INFINITY, f64::min)
+            }
+            Primitive::Blade { length, height, thickness } => length.min(height).min(thickness),
+        }
+    }
+
+    /// Where a ray from `q` along the unit direction `d` (tool frame) leaves the shape for the
+    /// last time before it is past the bounding box: the distance along the ray, or `None` when
+    /// the ray misses. The primitives are convex, so a ray enters and leaves at most once.
+    #[must_use]
+    pub fn exit_along(&self, q: Vec3, d: Vec3) -> Option<f64> {
+        let (lo, hi) = self.bounds();
+        let reach = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
+            + (0..3).map(|k| (q[k] - 0.5 * (lo[k] + hi[k])).powi(2)).sum::<f64>().sqrt();
+        let at = |s: f64| self.distance(std::array::from_fn(|k| q[k] + s * d[k])).0;
+        let tiny = 1e-9 * reach.max(1e-12);
+        // Sphere tracing: a step of φ never crosses the surface.
+        let mut s = 0.0;
+        let mut phi = at(s);
+        while phi > tiny {
+            s += phi;
+            if s > reach {
+                return None;
+            }
+            phi = at(s);
+        }
+        // Inside: march in steps of |φ| (the distance to the nearest surface point bounds the
+        // distance to the exit from below), then bisect the last step.
+        let mut inside = s;
+        loop {
+            let step = (-at(inside)).max(tiny);
+            let next = inside + step;
+            if next > reach {
+                return Some(reach);
+            }
+            if at(next) >= 0.0 {
+                let (mut a, mut b) = (inside, next);
+                for _ in 0..60 {
+                    let m = 0.5 * (a + b);
+                    if at(m) < 0.0 { a = m } else { b = m }
+                }
+                return Some(b);
+            }
+            inside = next;
+        }
+    }
+}
+
+/// The signed distance and normal of a ball of `radius` about the origin.
+fn ball(p: Vec3, radius: f64) -> (f64, Vec3) {
+    let r = p.iter().map(|c| c * c).sum::<f64>().sqrt();
+    // At the centre every direction is out; +z is as good as any and keeps results defined.
+    let n = if r > 0.0 { p.map(|c| c / r) } else { [0.0, 0.0, 1.0] };
+    (r - radius, n)
+}
+
+/// The signed distance and normal of a box of half extents `h` about the origin.
+fn cuboid(p: Vec3, h: Vec3) -> (f64, Vec3) {
+    let q: Vec3 = std::array::from_fn(|k| p[k].abs() - h[k]);
+    let outside: Vec3 = q.map(|c| c.max(0.0));
+    let out_len = outside.iter().map(|c| c * c).sum::<f64>().sqrt();
+    if out_len > 0.0 {
+        let n = std::array::from_fn(|k| outside[k].copysign(p[k]) / out_len);
+        return (out_len, n);
+    }
+    // Inside: the nearest face, the first of equals so the result is deterministic.
+    let axis = (0..3).fold(0, |best, k| if q[k] > q[best] { k } else { best });
+    let mut n = [0.0; 3];
+    n[axis] = if p[axis] < 0.0 { -1.0 } else { 1.0 };
+    (q[axis], n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shapes() -> Vec<Shape> {
+        vec![
+            Shape::new(Primitive::Sphere { radius: 0.01 }, [0.0; 3]).unwrap(),
+            Shape::new(Primitive::Capsule { radius: 0.003, length: 0.05 }, [0.001, 0.0, 0.0])
+                .unwrap(),
+            Shape::new(Primitive::Cuboid { half_extents: [0.01, 0.02, 0.005] }, [0.0; 3]).unwrap(),
+            Shape::new(
+                Primitive::Blade { length: 0.02, height: 0.01, thickness: 0.0005 },
+                [0.0; 3],
+            )
+            .unwrap(),
+        ]
+    }
+
+    #[test]
+    fn normals_are_the_distance_gradient() {
+        // Central differences of a distance that is smooth away from the medial axis; 1e-6 is the
+        // step's truncation error (h² · curvature ≈ 1e-14 / 1e-3) with rounding to spare.
+        let h = 1e-8;
+        for shape in shapes() {
+            for i in 0..200 {
+                let q: Vec3 =
+                    std::array::from_fn(|k| 0.03 * ((i * 7 + k * 13) as f64 * 0.37).sin());
+                let (_, n) = shape.distance(q);
+                let g: Vec3 = std::array::from_fn(|k| {
+                    let mut a = q;
+                    let mut b = q;
+                    a[k] += h;
+                    b[k] -= h;
+                    (shape.distance(a).0 - shape.distance(b).0) / (2.0 * h)
+                });
+                let diff = (0..3).map(|k| (g[k] - n[k]).abs()).fold(0.0, f64::max);
+                let off_axis = (0..3).map(|k| g[k] * g[k]).sum::<f64>() > 0.999;
+                if off_axis {
+                    assert!(diff < 1e-5, "{shape:?} at {q:?}: gradient {g:?}, normal {n:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bounds_contain_the_shape_and_rays_exit_on_the_surface() {
+        for shape in shapes() {
+            let (lo, hi) = shape.bounds();
+            for i in 0..500 {
+                let q: Vec3 =
+                    std::array::from_fn(|k| 0.06 * ((i * 11 + k * 5) as f64 * 0.91).sin());
+                let inside = shape.distance(q).0 < 0.0;
+                let within = (0..3).all(|k| lo[k] <= q[k] && q[k] <= hi[k]);
+                assert!(!inside || within, "{shape:?}: {q:?} inside but outside its bounds");
+            }
+            let centre: Vec3 = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+            let below: Vec3 = std::array::from_fn(|k| centre[k] - if k == 0 { 0.2 } else { 0.0 });
+            let s = shape.exit_along(below, [1.0, 0.0, 0.0]).expect("the ray crosses the shape");
+            let exit: Vec3 = std::array::from_fn(|k| below[k] + if k == 0 { s } else { 0.0 });
+            assert!(shape.distance(exit).0.abs() < 1e-9, "{shape:?}");
+            assert!((exit[0] - hi[0]).abs() < 1e-9, "{shape:?}: exit {exit:?}");
+            assert_eq!(shape.exit_along(below, [-1.0, 0.0, 0.0]), None);
+        }
+    }
+
+    #[test]
+    fn bad_sizes_are_refused() {
+        let e = Shape::new(Primitive::Sphere { radius: -1.0 }, [0.0; 3]).unwrap_err();
+        assert!(e.to_string().contains("radius is -1"), "{e}");
+        assert!(
+            Shape::new(Primitive::Capsule { radius: 1.0, length: f64::NAN }, [0.0; 3]).is_err()
+        );
+    }
+}

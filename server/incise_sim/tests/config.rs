@@ -480,3 +480,94 @@ fn the_executor_is_a_scene_key() {
         assert_eq!((executor.threads(), executor.idle()), (3, incise_fem::Idle::Sleep));
     }
 }
+
+/// The minimal block with `tools` appended (its first tool key is on line 18).
+fn with_tools(tools: &str) -> String {
+    format!("{GOOD}{tools}")
+}
+
+const SCALPEL: &str = "[[tools]]
+name = \"scalpel\"
+stiffness = 400.0
+damping = 0.02
+cutting = \"remove\"
+outer = { shape = \"capsule\", radius = 0.002, length = 0.05 }
+inner = { shape = \"blade\", length = 0.004, height = 0.003, thickness = 0.001, offset = [0.0, 0.0, 0.0005] }
+[[tools.path]]
+time = 0.0
+position = [0.0, 0.0, 0.05]
+[[tools.path]]
+time = 1.0
+position = [0.0, 0.0, 0.01]
+rotation = [0.0, 1.0, 0.0, 0.0]
+[[tools]]
+name = \"grasper\"
+stiffness = 300.0
+outer = { mesh = \"tools/grasper.stl\", unit = \"mm\" }
+[tools.jaws]
+length = 0.01
+width = 0.004
+close_below = 0.05
+open_above = 0.3
+stiffness = 200.0
+";
+
+#[test]
+fn tools_are_scene_keys() {
+    use incise_sim::config::{Cutting, LengthUnit, ShapeSpec};
+    use incise_tool::Primitive;
+    let config = SceneConfig::from_toml(&with_tools(SCALPEL), "t.toml").unwrap();
+    let [scalpel, grasper] = &config.tools[..] else { panic!("two tools") };
+    assert_eq!(
+        (scalpel.name.as_str(), scalpel.cutting, scalpel.stiffness),
+        ("scalpel", Cutting::Remove, 400.0)
+    );
+    let Some(ShapeSpec::Primitive(inner)) = &scalpel.inner else {
+        panic!("an analytic inner shape")
+    };
+    assert!(matches!(inner.primitive(), Primitive::Blade { .. }));
+    let path = scalpel.path.as_ref().unwrap();
+    let halfway = path.at(0.5);
+    assert!((halfway.pose.position()[2] - 0.03).abs() < 1e-15);
+    assert_eq!(grasper.cutting, Cutting::Off);
+    assert_eq!(
+        grasper.outer,
+        ShapeSpec::Mesh {
+            path: "tools/grasper.stl".into(),
+            unit: LengthUnit::Millimetre,
+            offset: [0.0; 3]
+        }
+    );
+    assert!(grasper.jaws.is_some() && grasper.path.is_none());
+}
+
+#[test]
+fn tool_errors_name_the_key_and_line() {
+    let first = GOOD.lines().count() + 1;
+    let cases: Vec<(String, usize, &str, &str)> = vec![
+        (SCALPEL.replace("stiffness = 400.0", "stiffness = -1.0"), first + 2, "tools[0].stiffness", "between"),
+        (SCALPEL.replace("cutting = \"remove\"", "cutting = \"laser\""), first + 4, "tools[0].cutting", "laser"),
+        (
+            SCALPEL.replace("inner = { shape = \"blade\", length = 0.004, height = 0.003, thickness = 0.001, offset = [0.0, 0.0, 0.0005] }\n", ""),
+            first + 4,
+            "tools[0].cutting",
+            "inner",
+        ),
+        (SCALPEL.replace("cutting = \"remove\"", "cutting = \"separate\"").replace("shape = \"blade\", length = 0.004, height = 0.003, thickness = 0.001", "shape = \"sphere\", radius = 0.001"), first + 4, "tools[0].cutting", "blade"),
+        (SCALPEL.replace("radius = 0.002, length", "radius = 0.0, length"), first + 5, "tools[0].outer.radius", "positive"),
+        (SCALPEL.replace("shape = \"capsule\", radius = 0.002, length = 0.05", "shape = \"capsule\", radius = 0.002"), first + 5, "tools[0].outer.length", "missing"),
+        (SCALPEL.replace("shape = \"capsule\"", "shape = \"cone\""), first + 5, "tools[0].outer.shape", "cone"),
+        (SCALPEL.replace("radius = 0.002, length = 0.05", "radius = 0.002, length = 0.05, thickness = 0.1"), first + 5, "tools[0].outer.thickness", "not a size"),
+        (SCALPEL.replace("time = 1.0", "time = 0.0"), first + 11, "tools[0].path[1].time", "increasing"),
+        (SCALPEL.replace("rotation = [0.0, 1.0, 0.0, 0.0]", "rotation = [0.0, 2.0, 0.0, 0.0]"), first + 13, "tools[0].path[1].rotation", "norm 2"),
+        (SCALPEL.replace("name = \"grasper\"", "name = \"scalpel\""), first + 15, "tools[1].name", "two tools"),
+        (SCALPEL.replace("unit = \"mm\"", "unit = \"inch\""), first + 17, "tools[1].outer.unit", "inch"),
+        (SCALPEL.replace("open_above = 0.3", "open_above = 0.01"), first + 22, "tools[1].jaws.open_above", "close_below"),
+    ];
+    for (tools, line, key, what) in cases {
+        let text = with_tools(&tools);
+        let e = error(&text);
+        assert_eq!(where_(&e), (line, key.to_owned()), "{e}");
+        assert!(e.to_string().contains(what), "{e}");
+    }
+}

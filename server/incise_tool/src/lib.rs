@@ -5,14 +5,20 @@
 //! - [`shape`]: analytic shapes by signed distance (sphere, capsule, cuboid, blade);
 //! - [`contact`]: penalty contact of the outer shape with the surface, as springs on embedded
 //!   points (a force field of `incise_fem`), swept so a fast tool does not tunnel, and its
-//!   linearisation with respect to the pose for the haptic loop.
+//!   linearisation with respect to the pose for the haptic loop;
+//! - [`grasp`]: jaws that hold the surface points between them;
+//! - [`path`]: scripted tool paths (waypoints with times).
 //!
 //! Pure: data in, data out; no files, threads or clocks.
 
 pub mod contact;
+pub mod grasp;
+pub mod path;
 pub mod pose;
 pub mod shape;
 
 pub use contact::{Contact, ContactSettings, Linearisation, SurfacePoint};
+pub use grasp::{Grasp, GraspEvent, Jaws};
+pub use path::{PathError, ToolPath, Waypoint};
 pub use pose::{Pose, PoseError, ToolPose};
 pub use shape::{Primitive, Shape, ShapeError};

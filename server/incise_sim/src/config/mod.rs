@@ -9,6 +9,10 @@
 //! decoder is the one place that checks a scene file: the raw document is deserialised with
 //! spans (`toml::Spanned`), and every refusal names the key and the line.
 
+mod tools;
+
+pub use tools::{Cutting, ShapeSpec, ToolSpec};
+
 use incise_fem::forcefield::tet::Elasticity;
 use incise_fem::ode::{LinearSolver, MassMatrix, Rayleigh};
 use incise_fem::{Executor, Formulation, Idle};
@@ -75,6 +79,8 @@ pub struct SceneConfig {
     pub loads: Vec<PatchLoad>,
     /// The threads the physics runs on (`[exec]`).
     pub exec: ExecSpec,
+    /// The tools (`[[tools]]`).
+    pub tools: Vec<ToolSpec>,
 }
 
 /// The mechanical model, with the geometry it is built on and the integrator that steps it.
@@ -532,6 +538,8 @@ struct RawScene {
     loads: Vec<RawLoad>,
     #[serde(default)]
     exec: Option<RawExec>,
+    #[serde(default)]
+    tools: Vec<Spanned<tools::RawTool>>,
 }
 
 #[derive(Deserialize)]
@@ -1633,6 +1641,7 @@ impl SceneConfig {
             Some(g) => c.finite3(g, "gravity")?,
             None => [0.0, 0.0, -9.81],
         };
-        Ok(Self { name: raw.name, model, materials, gravity, fixed, loads, exec })
+        let tools = c.tools(&raw.tools)?;
+        Ok(Self { name: raw.name, model, materials, gravity, fixed, loads, exec, tools })
     }
 }

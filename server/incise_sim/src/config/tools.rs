@@ -1,0 +1,401 @@
+//! `[[tools]]`: the tools of a scene, their shapes, contact, cutting, jaws and scripted path.
+//!
+//! ```toml
+//! [[tools]]
+//! name = "scalpel"
+//! stiffness = 400.0            # N/m per surface point in contact
+//! damping = 0.02               # N·s/m per point, along the normal
+//! cutting = "remove"           # "off" (default), "remove" (voxels), "separate" (links)
+//! outer = { shape = "capsule", radius = 0.002, length = 0.05 }
+//! inner = { shape = "blade", length = 0.004, height = 0.003, thickness = 0.001 }
+//! # a closed triangle mesh instead: outer = { mesh = "tools/probe.stl", unit = "mm" }
+//!
+//! [tools.jaws]                 # a grasper
+//! length = 0.01
+//! width = 0.004
+//! close_below = 0.05           # rad
+//! open_above = 0.3
+//! stiffness = 300.0
+//!
+//! [[tools.path]]               # scripted waypoints (optional)
+//! time = 0.0
+//! position = [0.0, 0.0, 0.05]
+//! rotation = [1.0, 0.0, 0.0, 0.0]   # w, x, y, z
+//! gripper = 0.5
+//! ```
+
+use super::{Checker, LengthUnit, SceneError};
+use incise_math::Vec3;
+use incise_tool::{Jaws, Pose, Primitive, Shape, ToolPath, ToolPose, Waypoint};
+use serde::Deserialize;
+use toml::Spanned;
+
+/// A tool of the scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ToolSpec {
+    /// Its name (messages, recordings).
+    pub name: String,
+    /// The shape that pushes the tissue (`outer`).
+    pub outer: ShapeSpec,
+    /// The shape that cuts (`inner`), when the tool cuts.
+    pub inner: Option<ShapeSpec>,
+    /// Penalty stiffness per surface point in contact (N/m, `stiffness`).
+    pub stiffness: f64,
+    /// Damping per surface point along the contact normal (N·s/m, `damping`).
+    pub damping: f64,
+    /// Whether and how it cuts (`cutting`).
+    pub cutting: Cutting,
+    /// Its jaws, for a grasper (`[tools.jaws]`).
+    pub jaws: Option<Jaws>,
+    /// Its scripted path (`[[tools.path]]`), when the scene drives it.
+    pub path: Option<ToolPath>,
+}
+
+/// How a tool cuts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cutting {
+    /// It does not (`"off"`, the default).
+    Off,
+    /// It removes the fine voxels whose deformed centres its inner shape contains (paper 1 §3);
+    /// in a tensor-mass scene, the tetrahedra whose centroids it contains.
+    Remove,
+    /// It severs the links between voxels that its inner blade's mid-plane sweeps through,
+    /// so no material is lost (`"separate"`; hexahedral scenes, blade inner shapes).
+    Separate,
+}
+
+/// A shape as the scene gives it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ShapeSpec {
+    /// An analytic shape.
+    Primitive(Shape),
+    /// A closed triangle mesh file (`.stl`, `.obj`), relative to the scene file, in `unit`,
+    /// offset in the tool frame; read by the caller (`incise_scene`).
+    Mesh {
+        /// The file.
+        path: String,
+        /// The unit of its coordinates.
+        unit: LengthUnit,
+        /// Where its origin is in the tool frame (m).
+        offset: Vec3,
+    },
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawTool {
+    name: Spanned<String>,
+    outer: Spanned<RawShape>,
+    #[serde(default)]
+    inner: Option<Spanned<RawShape>>,
+    stiffness: Spanned<f64>,
+    #[serde(default)]
+    damping: Option<Spanned<f64>>,
+    #[serde(default)]
+    cutting: Option<Spanned<String>>,
+    #[serde(default)]
+    jaws: Option<Spanned<RawJaws>>,
+    #[serde(default)]
+    path: Vec<Spanned<RawWaypoint>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawShape {
+    shape: Option<Spanned<String>>,
+    mesh: Option<Spanned<String>>,
+    unit: Option<Spanned<String>>,
+    radius: Option<Spanned<f64>>,
+    length: Option<Spanned<f64>>,
+    height: Option<Spanned<f64>>,
+    thickness: Option<Spanned<f64>>,
+    half_extents: Option<Spanned<[f64; 3]>>,
+    #[serde(default)]
+    offset: Option<Spanned<[f64; 3]>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawJaws {
+    length: Spanned<f64>,
+    width: Spanned<f64>,
+    close_below: Spanned<f64>,
+    open_above: Spanned<f64>,
+    stiffness: Spanned<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawWaypoint {
+    time: Spanned<f64>,
+    position: Spanned<[f64; 3]>,
+    #[serde(default)]
+    rotation: Option<Spanned<[f64; 4]>>,
+    #[serde(default)]
+    gripper: Option<Spanned<f64>>,
+}
+
+/// Stiffer than this per point is a typing error, not a tool (N/m): 1e7 N/m on a single
+/// surface point would need steps of nanoseconds even implicitly to resolve anything.
+const MAX_STIFFNESS: f64 = 1e7;
+
+impl Checker<'_> {
+    /// `[[tools]]`.
+    pub(super) fn tools(&self, raw: &[Spanned<RawTool>]) -> Result<Vec<ToolSpec>, SceneError> {
+        let mut tools: Vec<ToolSpec> = Vec::new();
+        for (k, t) in raw.iter().enumerate() {
+            let at = |key: &str| format!("tools[{k}].{key}");
+            let raw_tool = t.get_ref();
+            let name = raw_tool.name.get_ref().trim().to_owned();
+            if name.is_empty() {
+                return Err(self.invalid(raw_tool.name.span(), &at("name"), "is empty"));
+            }
+            if tools.iter().any(|other| other.name == name) {
+                return Err(self.invalid(
+                    raw_tool.name.span(),
+                    &at("name"),
+                    format!("{name:?} names two tools; tool names must differ"),
+                ));
+            }
+            let stiffness =
+                self.within(&raw_tool.stiffness, &at("stiffness"), (0.0, MAX_STIFFNESS), "N/m")?;
+            let damping = self.non_negative(raw_tool.damping.as_ref(), &at("damping"), 0.0)?;
+            let outer = self.shape(&raw_tool.outer, &at("outer"))?;
+            let inner = raw_tool.inner.as_ref().map(|s| self.shape(s, &at("inner"))).transpose()?;
+            let cutting = match raw_tool.cutting.as_ref().map(|c| (c.span(), c.get_ref().as_str()))
+            {
+                None | Some((_, "off")) => Cutting::Off,
+                Some((_, "remove")) => Cutting::Remove,
+                Some((_, "separate")) => Cutting::Separate,
+                Some((span, other)) => {
+                    return Err(self.invalid(
+                        span,
+                        &at("cutting"),
+                        format!("is {other:?}; expected \"off\", \"remove\" or \"separate\""),
+                    ));
+                }
+            };
+            if cutting != Cutting::Off {
+                let span = raw_tool.cutting.as_ref().map_or(t.span(), Spanned::span);
+                match &inner {
+                    None => {
+                        return Err(self.invalid(
+                            span,
+                            &at("cutting"),
+                            "needs an `inner` shape: the part of the tool that cuts",
+                        ));
+                    }
+                    Some(ShapeSpec::Primitive(s))
+                        if cutting == Cutting::Separate
+                            && !matches!(s.primitive(), Primitive::Blade { .. }) =>
+                    {
+                        return Err(self.invalid(
+                            span,
+                            &at("cutting"),
+                            "\"separate\" severs links along a blade's mid-plane: the inner \
+                             shape must be a `blade`",
+                        ));
+                    }
+                    Some(ShapeSpec::Mesh { .. }) if cutting == Cutting::Separate => {
+                        return Err(self.invalid(
+                            span,
+                            &at("cutting"),
+                            "\"separate\" needs a `blade` inner shape, not a mesh",
+                        ));
+                    }
+                    Some(_) => {}
+                }
+            }
+            let jaws = raw_tool.jaws.as_ref().map(|j| self.jaws(j, k)).transpose()?;
+            let path =
+                if raw_tool.path.is_empty() { None } else { Some(self.path(&raw_tool.path, k)?) };
+            tools.push(ToolSpec { name, outer, inner, stiffness, damping, cutting, jaws, path });
+        }
+        Ok(tools)
+    }
+
+    fn shape(&self, s: &Spanned<RawShape>, key: &str) -> Result<ShapeSpec, SceneError> {
+        let raw = s.get_ref();
+        let offset = match &raw.offset {
+            Some(o) => self.finite3(o, &format!("{key}.offset"))?,
+            None => [0.0; 3],
+        };
+        if let Some(path) = &raw.mesh {
+            let extra = [
+                (raw.shape.as_ref().map(Spanned::span), "shape"),
+                (raw.radius.as_ref().map(Spanned::span), "radius"),
+                (raw.length.as_ref().map(Spanned::span), "length"),
+                (raw.height.as_ref().map(Spanned::span), "height"),
+                (raw.thickness.as_ref().map(Spanned::span), "thickness"),
+                (raw.half_extents.as_ref().map(Spanned::span), "half_extents"),
+            ];
+            if let Some((Some(span), name)) = extra.into_iter().find(|(s, _)| s.is_some()) {
+                return Err(self.invalid(
+                    span,
+                    &format!("{key}.{name}"),
+                    "describes an analytic shape; it cannot be given with `mesh`",
+                ));
+            }
+            let unit = match raw.unit.as_ref().map(|u| (u.span(), u.get_ref().as_str())) {
+                None | Some((_, "m")) => LengthUnit::Metre,
+                Some((_, "cm")) => LengthUnit::Centimetre,
+                Some((_, "mm")) => LengthUnit::Millimetre,
+                Some((span, other)) => {
+                    return Err(self.invalid(
+                        span,
+                        &format!("{key}.unit"),
+                        format!("is \"{other}\"; expected \"m\", \"cm\" or \"mm\""),
+                    ));
+                }
+            };
+            return Ok(ShapeSpec::Mesh { path: path.get_ref().clone(), unit, offset });
+        }
+        if let Some(unit) = &raw.unit {
+            return Err(self.invalid(
+                unit.span(),
+                &format!("{key}.unit"),
+                "applies only to `mesh`",
+            ));
+        }
+        let Some(kind) = &raw.shape else {
+            return Err(self.invalid(
+                s.span(),
+                key,
+                "needs `shape` (\"sphere\", \"capsule\", \"box\", \"blade\") or `mesh`",
+            ));
+        };
+        let need = |v: &Option<Spanned<f64>>, name: &str| -> Result<f64, SceneError> {
+            match v {
+                Some(v) => self.positive(v, &format!("{key}.{name}")),
+                None => Err(self.invalid(
+                    kind.span(),
+                    &format!("{key}.{name}"),
+                    format!("is missing: a {} needs it", kind.get_ref()),
+                )),
+            }
+        };
+        // Keys another primitive takes are refused, so a misplaced size is not silently unused.
+        let allowed: &[&str] = match kind.get_ref().as_str() {
+            "sphere" => &["radius"],
+            "capsule" => &["radius", "length"],
+            "box" => &["half_extents"],
+            "blade" => &["length", "height", "thickness"],
+            other => {
+                return Err(self.invalid(
+                    kind.span(),
+                    &format!("{key}.shape"),
+                    format!("is {other:?}; expected \"sphere\", \"capsule\", \"box\" or \"blade\""),
+                ));
+            }
+        };
+        let given = [
+            (raw.radius.as_ref().map(Spanned::span), "radius"),
+            (raw.length.as_ref().map(Spanned::span), "length"),
+            (raw.height.as_ref().map(Spanned::span), "height"),
+            (raw.thickness.as_ref().map(Spanned::span), "thickness"),
+            (raw.half_extents.as_ref().map(Spanned::span), "half_extents"),
+        ];
+        for (span, name) in given {
+            if let Some(span) = span
+                && !allowed.contains(&name)
+            {
+                return Err(self.invalid(
+                    span,
+                    &format!("{key}.{name}"),
+                    format!("is not a size of a {}", kind.get_ref()),
+                ));
+            }
+        }
+        let primitive = match kind.get_ref().as_str() {
+            "sphere" => Primitive::Sphere { radius: need(&raw.radius, "radius")? },
+            "capsule" => Primitive::Capsule {
+                radius: need(&raw.radius, "radius")?,
+                length: need(&raw.length, "length")?,
+            },
+            "box" => {
+                let Some(h) = &raw.half_extents else {
+                    return Err(self.invalid(
+                        kind.span(),
+                        &format!("{key}.half_extents"),
+                        "is missing: a box needs it",
+                    ));
+                };
+                let half_extents = self.finite3(h, &format!("{key}.half_extents"))?;
+                Primitive::Cuboid { half_extents }
+            }
+            _ => Primitive::Blade {
+                length: need(&raw.length, "length")?,
+                height: need(&raw.height, "height")?,
+                thickness: need(&raw.thickness, "thickness")?,
+            },
+        };
+        Shape::new(primitive, offset)
+            .map(ShapeSpec::Primitive)
+            .map_err(|e| self.invalid(s.span(), key, e.to_string()))
+    }
+
+    fn jaws(&self, j: &Spanned<RawJaws>, k: usize) -> Result<Jaws, SceneError> {
+        let raw = j.get_ref();
+        let at = |key: &str| format!("tools[{k}].jaws.{key}");
+        let jaws = Jaws {
+            length: self.positive(&raw.length, &at("length"))?,
+            width: self.positive(&raw.width, &at("width"))?,
+            close_below: self.within(&raw.close_below, &at("close_below"), (0.0, 3.2), "rad")?,
+            open_above: self.within(&raw.open_above, &at("open_above"), (0.0, 3.2), "rad")?,
+            stiffness: self.within(
+                &raw.stiffness,
+                &at("stiffness"),
+                (0.0, MAX_STIFFNESS),
+                "N/m",
+            )?,
+        };
+        if jaws.open_above <= jaws.close_below {
+            return Err(self.invalid(
+                raw.open_above.span(),
+                &at("open_above"),
+                format!(
+                    "is {}; it must be above close_below ({}), or the jaws would open and close \
+                     at the same angle",
+                    jaws.open_above, jaws.close_below
+                ),
+            ));
+        }
+        Ok(jaws)
+    }
+
+    fn path(&self, raw: &[Spanned<RawWaypoint>], k: usize) -> Result<ToolPath, SceneError> {
+        let mut waypoints = Vec::new();
+        for (i, w) in raw.iter().enumerate() {
+            let at = |key: &str| format!("tools[{k}].path[{i}].{key}");
+            let r = w.get_ref();
+            let time = self.finite(&r.time, &at("time"))?;
+            if let Some(last) = waypoints.last().map(|p: &Waypoint| p.time)
+                && time <= last
+            {
+                return Err(self.invalid(
+                    r.time.span(),
+                    &at("time"),
+                    format!("is {time} s; waypoints must come in increasing time (the previous is at {last} s)"),
+                ));
+            }
+            let position = self.finite3(&r.position, &at("position"))?;
+            let rotation = r.rotation.as_ref().map_or([1.0, 0.0, 0.0, 0.0], |q| *q.get_ref());
+            let gripper = match &r.gripper {
+                Some(g) => self.within(g, &at("gripper"), (0.0, 3.2), "rad")?,
+                None => 0.0,
+            };
+            let pose = Pose::new(position, rotation).map_err(|e| {
+                let span = r.rotation.as_ref().map_or(r.position.span(), Spanned::span);
+                self.invalid(span, &at("rotation"), e.to_string())
+            })?;
+            waypoints.push(Waypoint { time, pose: ToolPose { pose, gripper } });
+        }
+        ToolPath::new(waypoints).map_err(|e| {
+            self.invalid(
+                raw.first().map_or(0..0, Spanned::span),
+                &format!("tools[{k}].path"),
+                e.to_string(),
+            )
+        })
+    }
+}

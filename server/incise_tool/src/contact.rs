@@ -42,17 +42,18 @@ pub struct ContactSettings {
     pub damping: f64,
 }
 
-/// A surface point as contact sees it: its id, deformed position and velocity, and embedding.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SurfacePoint {
-    /// The surface vertex.
-    pub id: u32,
-    /// Deformed position (m, grid frame).
-    pub position: Vec3,
-    /// Velocity (m/s).
-    pub velocity: Vec3,
-    /// Where it is embedded in the model.
-    pub embedding: EmbeddedPoint,
+/// What contact needs of a surface point once it is found in contact: its velocity (m/s) and
+/// its embedding in the model. Asked only for the few points in contact, so that a large
+/// surface is scanned by position alone.
+pub trait PointDetails {
+    /// The velocity and embedding of surface vertex `id`.
+    fn details(&self, id: u32) -> (Vec3, EmbeddedPoint);
+}
+
+impl<F: Fn(u32) -> (Vec3, EmbeddedPoint)> PointDetails for F {
+    fn details(&self, id: u32) -> (Vec3, EmbeddedPoint) {
+        self(id)
+    }
 }
 
 /// One point in contact.
@@ -80,16 +81,19 @@ pub struct Contact {
 
 /// Finds the surface points in contact with `shape` at `pose` and makes their springs.
 ///
-/// `previous` is the tool's pose at the previous frame and `dt` the time between the two (for the
-/// swept test and the tool's velocity); `None` on the first frame. Points are visited in the
-/// order given, so the result is deterministic.
+/// `points` are the surface vertices' ids and deformed positions (m, grid frame); `details`
+/// gives the velocity and embedding of those in contact. `previous` is the tool's pose at the
+/// previous frame and `dt` the time between the two (for the swept test and the tool's
+/// velocity); `None` on the first frame. Points are visited in the order given, so the result is
+/// deterministic.
 #[must_use]
 pub fn detect(
     shape: &Shape,
     pose: &Pose,
     previous: Option<(&Pose, f64)>,
     settings: &ContactSettings,
-    points: impl IntoIterator<Item = SurfacePoint>,
+    points: impl IntoIterator<Item = (u32, Vec3)>,
+    details: &impl PointDetails,
 ) -> Contact {
     let (lo, hi) = grid_bounds(shape, pose);
     let sweep = previous.map(|(from, dt)| Sweep::new(shape, from, pose, dt));
@@ -101,8 +105,7 @@ pub fn detect(
         None => (lo, hi),
     };
     let mut contact = Contact::default();
-    for point in points {
-        let p = point.position;
+    for (id, p) in points {
         if (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]) {
             continue;
         }
@@ -114,8 +117,9 @@ pub fn detect(
             sweep.as_ref().and_then(|s| s.passed_over(shape, pose, p)).map(|(n, d)| (n, d, true))
         };
         let Some((normal, depth, swept)) = found else { continue };
+        let (velocity, embedding) = details.details(id);
         let tool_velocity = sweep.as_ref().map_or([0.0; 3], |s| s.velocity_at(pose, p));
-        let approach = dot(&std::array::from_fn(|k| point.velocity[k] - tool_velocity[k]), &normal);
+        let approach = dot(&std::array::from_fn(|k| velocity[k] - tool_velocity[k]), &normal);
         // Damping from the start-of-step velocity moves the target; never past the point, so it
         // only softens the push.
         let pushed = if settings.stiffness > 0.0 {
@@ -125,8 +129,8 @@ pub fn detect(
         };
         let target = std::array::from_fn(|k| p[k] + pushed * normal[k]);
         let stiffness = outer(normal, settings.stiffness);
-        contact.springs.push(EmbeddedSpring { point: point.embedding, stiffness, target });
-        contact.points.push(ContactPoint { id: point.id, normal, depth, swept });
+        contact.springs.push(EmbeddedSpring { point: embedding, stiffness, target });
+        contact.points.push(ContactPoint { id, normal, depth, swept });
     }
     contact
 }
@@ -299,19 +303,22 @@ mod tests {
     use crate::shape::Primitive;
 
     /// A flat patch of surface points at z = 0, each its own node.
-    fn patch(n: usize, spacing: f64) -> Vec<SurfacePoint> {
+    fn patch(n: usize, spacing: f64) -> Vec<(u32, Vec3)> {
         (0..n * n)
-            .map(|i| SurfacePoint {
-                id: i as u32,
-                position: [
+            .map(|i| {
+                let position = [
                     (i % n) as f64 * spacing - 0.5 * (n - 1) as f64 * spacing,
                     (i / n) as f64 * spacing - 0.5 * (n - 1) as f64 * spacing,
                     0.0,
-                ],
-                velocity: [0.0; 3],
-                embedding: EmbeddedPoint::node(i as u32),
+                ];
+                (i as u32, position)
             })
             .collect()
+    }
+
+    /// Points at rest, each its own node.
+    fn still(id: u32) -> (Vec3, EmbeddedPoint) {
+        ([0.0; 3], EmbeddedPoint::node(id))
     }
 
     fn ball() -> Shape {
@@ -324,10 +331,10 @@ mod tests {
     fn a_pressed_ball_pushes_the_points_inside_it_along_its_normal() {
         let points = patch(21, 0.001);
         let pose = Pose::at([0.0, 0.0, 0.004]);
-        let contact = detect(&ball(), &pose, None, &SETTINGS, points.iter().copied());
+        let contact = detect(&ball(), &pose, None, &SETTINGS, points.iter().copied(), &still);
         // The lattice points strictly within √(5² − 4²) = 3 mm of the axis: i² + j² < 9.
         assert_eq!(contact.points.len(), 25);
-        let x: Vec<Vec3> = points.iter().map(|p| p.position).collect();
+        let x: Vec<Vec3> = points.iter().map(|p| p.1).collect();
         let lin = Linearisation::of(&contact.springs, &x, pose.position());
         // The tissue pushes the tool up (+z), symmetric in x and y.
         assert!(lin.force[2] > 0.0 && lin.force[0].abs() < 1e-12 && lin.force[1].abs() < 1e-12);
@@ -344,9 +351,9 @@ mod tests {
         let q = [0.99, 0.1, 0.05, 0.0f64];
         let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
         let pose = Pose::new([0.001, 0.0, 0.0035], q.map(|c| c / norm)).unwrap();
-        let contact = detect(&ball(), &pose, None, &SETTINGS, points.iter().copied());
+        let contact = detect(&ball(), &pose, None, &SETTINGS, points.iter().copied(), &still);
         assert!(contact.points.len() > 10);
-        let x: Vec<Vec3> = points.iter().map(|p| p.position).collect();
+        let x: Vec<Vec3> = points.iter().map(|p| p.1).collect();
         let lin = Linearisation::of(&contact.springs, &x, pose.position());
         let error = |eps: f64| {
             let dt = [1e-4 * eps, -5e-5 * eps, 2e-5 * eps];
@@ -383,9 +390,10 @@ mod tests {
             Shape::new(Primitive::Cuboid { half_extents: [0.01, 0.01, 0.0005] }, [0.0; 3]).unwrap();
         let from = Pose::at([0.0, 0.0, 0.02]);
         let to = Pose::at([0.0, 0.0, -0.03]);
-        let jumped = detect(&slab, &to, None, &SETTINGS, points.iter().copied());
+        let jumped = detect(&slab, &to, None, &SETTINGS, points.iter().copied(), &still);
         assert!(jumped.points.is_empty(), "without the sweep nothing is in contact");
-        let swept = detect(&slab, &to, Some((&from, 1e-3)), &SETTINGS, points.iter().copied());
+        let swept =
+            detect(&slab, &to, Some((&from, 1e-3)), &SETTINGS, points.iter().copied(), &still);
         assert_eq!(swept.points.len(), points.len());
         for c in &swept.points {
             assert!(c.swept && c.normal == [0.0, 0.0, -1.0]);

@@ -10,7 +10,6 @@
 //! on the gripper does not grab and drop the tissue at every frame. The springs are tissue
 //! forces like the contact's, and their negated sum is part of the tool's force.
 
-use crate::contact::SurfacePoint;
 use crate::pose::Pose;
 use incise_fem::forcefield::springs::{EmbeddedPoint, EmbeddedSpring};
 use incise_math::Vec3;
@@ -82,23 +81,24 @@ impl Grasp {
     }
 
     /// Follows the gripper angle: closes (taking hold of the points between the jaws if
-    /// `touching`), or opens (letting go). `points` are the surface points at this frame.
+    /// `touching`), or opens (letting go). `points` are the surface vertices' ids and deformed
+    /// positions at this frame.
     pub fn update(
         &mut self,
         jaws: &Jaws,
         pose: &Pose,
         gripper: f64,
         touching: bool,
-        points: impl IntoIterator<Item = SurfacePoint>,
+        points: impl IntoIterator<Item = (u32, Vec3)>,
     ) -> GraspEvent {
         if !self.closed && gripper < jaws.close_below {
             self.closed = true;
             if touching {
                 self.held = points
                     .into_iter()
-                    .filter_map(|p| {
-                        let q = pose.tool_from_grid(p.position);
-                        jaws.between(q, jaws.open_above).then_some(Held { id: p.id, anchor: q })
+                    .filter_map(|(id, p)| {
+                        let q = pose.tool_from_grid(p);
+                        jaws.between(q, jaws.open_above).then_some(Held { id, anchor: q })
                     })
                     .collect();
             }
@@ -143,15 +143,8 @@ mod tests {
     const JAWS: Jaws =
         Jaws { length: 0.01, width: 0.004, close_below: 0.05, open_above: 0.3, stiffness: 100.0 };
 
-    fn points() -> Vec<SurfacePoint> {
-        (0..50)
-            .map(|i| SurfacePoint {
-                id: i,
-                position: [0.0, 0.0004 * (f64::from(i) - 25.0), 0.005],
-                velocity: [0.0; 3],
-                embedding: EmbeddedPoint::node(i),
-            })
-            .collect()
+    fn points() -> Vec<(u32, Vec3)> {
+        (0..50).map(|i| (i, [0.0, 0.0004 * (f64::from(i) - 25.0), 0.005])).collect()
     }
 
     #[test]

@@ -6,18 +6,22 @@
 //! - [`contact`]: penalty contact of the outer shape with the surface, as springs on embedded
 //!   points (a force field of `incise_fem`), swept so a fast tool does not tunnel, and its
 //!   linearisation with respect to the pose for the haptic loop;
+//! - [`cut`]: what the inner shape cuts: the flood from where it enters, and a blade's swept
+//!   mid-plane for separation;
 //! - [`grasp`]: jaws that hold the surface points between them;
 //! - [`path`]: scripted tool paths (waypoints with times).
 //!
 //! Pure: data in, data out; no files, threads or clocks.
 
 pub mod contact;
+pub mod cut;
 pub mod grasp;
 pub mod path;
 pub mod pose;
 pub mod shape;
 
-pub use contact::{Contact, ContactSettings, Linearisation, SurfacePoint};
+pub use contact::{Contact, ContactPoint, ContactSettings, Linearisation, PointDetails, detect};
+pub use cut::{SweptBlade, flood};
 pub use grasp::{Grasp, GraspEvent, Jaws};
 pub use path::{PathError, ToolPath, Waypoint};
 pub use pose::{Pose, PoseError, ToolPose};

@@ -244,7 +244,7 @@ fn stl_corners_are_welded_by_their_bits_with_both_zeros_one() {
 }
 
 /// A cube as quads, in every reference form, with statements the reader ignores.
-const CUBE_OBJ: &str = "\
+pub(crate) const CUBE_OBJ: &str = "\
 # a cube as quads
 mtllib tool.mtl
 o cube

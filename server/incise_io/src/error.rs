@@ -5,10 +5,10 @@
 //! voxel.
 
 use incise_grid::VolumeError;
-use incise_mesh::TetMeshError;
+use incise_mesh::{TetMeshError, TriMeshError};
 use thiserror::Error;
 
-/// Why a label volume or a tetrahedral mesh could not be read or written.
+/// Why a label volume, a tetrahedral mesh or a triangle mesh could not be read or written.
 #[derive(Debug, Error)]
 pub enum IoError {
     /// The operating system refused a read or write, or a gzip stream is corrupt.
@@ -101,10 +101,10 @@ pub enum IoError {
         /// The file.
         file: String,
     },
-    /// A mesh file (Gmsh, legacy VTK, VTK XML) that does not parse where it is text: a missing
-    /// section, a malformed number, a count that disagrees with the data, an element naming a
-    /// node that does not exist, or a VTK XML `DataArray` (on the line of its tag) whose binary
-    /// data does not decode.
+    /// A mesh file (Gmsh, legacy VTK, VTK XML, ASCII STL, OBJ) that does not parse where it is
+    /// text: a missing section or keyword, a malformed number, a count that disagrees with the
+    /// data, an element or face naming a node or vertex that does not exist, or a VTK XML
+    /// `DataArray` (on the line of its tag) whose binary data does not decode.
     #[error("{file}: line {line}: {what}")]
     Syntax {
         /// The file.
@@ -114,9 +114,9 @@ pub enum IoError {
         /// What is wrong there.
         what: String,
     },
-    /// Binary mesh data (binary MSH, `BINARY` legacy VTK) that does not decode: a count beyond
-    /// the bytes the file holds, a value out of range, a section that does not end where its
-    /// counts say.
+    /// Binary mesh data (binary MSH, `BINARY` legacy VTK, binary STL) that does not decode: a
+    /// count beyond the bytes the file holds, a value out of range, a section that does not end
+    /// where its counts say.
     #[error("{file}: byte {}: {what}", grouped(*.offset))]
     Binary {
         /// The file.
@@ -137,6 +137,21 @@ pub enum IoError {
         at: Option<String>,
         /// Why the mesh was refused; its tetrahedron index counts the file's tetrahedra only.
         source: TetMeshError,
+    },
+    /// Triangles that parse but do not bound a solid (an edge in one triangle or in more than
+    /// two, neighbours wound in opposite senses, a triangle with no area, a non-finite vertex),
+    /// as [`incise_mesh::TriMesh::new`] reports them.
+    #[error("{file}: {}{source}", located(.at.as_deref()))]
+    TriMesh {
+        /// The file.
+        file: String,
+        /// The line or byte and the facet or face the problem is about, where there is one,
+        /// with the other facets or faces it involves.
+        at: Option<String>,
+        /// Why the mesh was refused; its triangle indices count the file's triangles (after
+        /// polygons are split into triangles) from 0. Boxed: the coordinates it carries would
+        /// enlarge every `IoError`, and so every `Result` of this crate.
+        source: Box<TriMeshError>,
     },
     /// The region array a caller named is not in the mesh file, or cannot hold region labels.
     #[error("{file}: region array: {what}")]
@@ -164,6 +179,7 @@ impl IoError {
             | Self::Syntax { file, .. }
             | Self::Binary { file, .. }
             | Self::Mesh { file, .. }
+            | Self::TriMesh { file, .. }
             | Self::RegionArray { file, .. }
             | Self::UnknownFormat { file } => file,
         }

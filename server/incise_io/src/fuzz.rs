@@ -13,13 +13,18 @@
 //! also has aligned 4- and 8-byte words overwritten with extreme values, which is where its
 //! counts and sizes are: a decoder that trusted one for an allocation would abort the test
 //! (a capacity overflow or an allocation of terabytes), not merely fail it. The files written
-//! by meshio and VTK under `tests/data/foreign` are damaged the same way.
+//! by meshio and VTK under `tests/data/foreign` are damaged the same way, and so are the
+//! triangle-mesh encodings: ASCII STL, binary STL (also with a header that starts with `solid`,
+//! so that a damaged size sends it to the ASCII reader first) and OBJ, with a hand-written OBJ
+//! of quads and relative indices.
 
+use crate::tri_mesh::tests::{CUBE_OBJ, icosphere, in_appearance_order, rounded_to_f32};
 use crate::{
     VtkCells, VtuBinary, VtuData, decode_gmsh, decode_inr, decode_nifti, decode_volume,
     decode_vtk_legacy, decode_vtu, encode_gmsh22, encode_gmsh41_binary, encode_inr, encode_nifti,
     encode_vtk_legacy, encode_vtk_legacy_binary, encode_vtu, encode_vtu_binary,
 };
+use crate::{decode_obj, decode_stl, encode_obj, encode_stl_ascii, encode_stl_binary};
 use incise_grid::LabelVolume;
 use incise_mesh::TetMesh;
 use incise_mesh::generate::cylinder;
@@ -280,13 +285,17 @@ fn damage(text: &[u8], rng: &mut SplitMix) -> Vec<u8> {
     bytes
 }
 
-/// A decoder of meshes.
-type Decode = fn(&[u8], &str) -> Result<TetMesh, crate::IoError>;
+/// A decoder of meshes, tetrahedral unless said otherwise.
+type Decode<M = TetMesh> = fn(&[u8], &str) -> Result<M, crate::IoError>;
 
 /// Feeds 400 damaged versions of `valid`, which decodes to `mesh`, to `decode`; none may panic,
 /// and the damage must make at least a quarter of them errors (else it is not reaching the
 /// parser).
-fn fuzz_mesh_decoder(seed: u64, (valid, mesh): (impl AsRef<[u8]>, TetMesh), decode: Decode) {
+fn fuzz_mesh_decoder<M: PartialEq + std::fmt::Debug>(
+    seed: u64,
+    (valid, mesh): (impl AsRef<[u8]>, M),
+    decode: Decode<M>,
+) {
     let valid = valid.as_ref();
     assert_eq!(decode(valid, "valid").expect("the valid encoding decodes"), mesh);
     let mut rng = SplitMix(seed);
@@ -415,4 +424,28 @@ fn damaged_foreign_files_never_panic() {
         let mesh = decode(bytes, file).unwrap_or_else(|e| panic!("{e}"));
         fuzz_mesh_decoder(seed, (bytes, mesh), decode);
     }
+}
+
+#[test]
+fn damaged_stl_ascii_never_panics() {
+    let mesh = icosphere(1);
+    fuzz_mesh_decoder(40, (encode_stl_ascii(&mesh), in_appearance_order(&mesh)), decode_stl);
+}
+
+#[test]
+fn damaged_stl_binary_never_panics() {
+    let mesh = rounded_to_f32(&icosphere(1));
+    let plain = encode_stl_binary(&mesh);
+    fuzz_mesh_decoder(41, (plain.clone(), in_appearance_order(&mesh)), decode_stl);
+    let mut solid = plain;
+    solid[..12].copy_from_slice(b"solid tool \n");
+    fuzz_mesh_decoder(42, (solid, in_appearance_order(&mesh)), decode_stl);
+}
+
+#[test]
+fn damaged_obj_never_panics() {
+    let mesh = icosphere(1);
+    fuzz_mesh_decoder(43, (encode_obj(&mesh), mesh), decode_obj);
+    let quads = decode_obj(CUBE_OBJ.as_bytes(), "cube.obj").unwrap_or_else(|e| panic!("{e}"));
+    fuzz_mesh_decoder(44, (CUBE_OBJ, quads), decode_obj);
 }

@@ -1,8 +1,10 @@
 //! Reading and writing segmented label volumes: NIfTI-1 single-file images (`.nii`, `.nii.gz`)
-//! and INRIMAGE-4 images (`.inr`, `.inr.gz`); and reading tetrahedral meshes
+//! and INRIMAGE-4 images (`.inr`, `.inr.gz`); reading tetrahedral meshes
 //! ([`read_tet_mesh`]) as meshing tools write them by default: Gmsh MSH 2.2 (ASCII) and 4.1
 //! (ASCII or binary) (`.msh`), legacy VTK, ASCII or `BINARY` (`.vtk`), and VTK XML unstructured
-//! grids (`.vtu`) with ASCII, base64 or appended raw data, zlib-compressed or not.
+//! grids (`.vtu`) with ASCII, base64 or appended raw data, zlib-compressed or not; and reading
+//! closed triangle meshes, the shapes of surgical tools ([`read_tri_mesh`]), as CAD tools export
+//! them: STL, binary or ASCII (`.stl`), and Wavefront OBJ (`.obj`).
 //!
 //! Every volume reader returns an [`incise_grid::LabelVolume`] in metres, and every error names the
 //! file and what in it is wrong. Decoders never panic and never allocate more than the header says
@@ -10,11 +12,14 @@
 //! before the label vector is allocated, and gzip streams are inflated only as far as the header
 //! asks. Gzip is recognised by its magic bytes, whatever the file is called. Mesh readers name
 //! the line (text) or byte offset (binary) or `DataArray` (VTU) of every error, and allocate only
-//! for data actually present, whatever counts a header announces.
+//! for data actually present, whatever counts a header announces. Triangle meshes must be closed
+//! and consistently wound ([`incise_mesh::TriMesh`]); an open surface or a flipped facet is an
+//! error naming the facet or face and its line or byte. They keep the file's coordinates, since
+//! STL and OBJ carry no unit.
 //!
-//! This crate knows geometry (`incise_grid`'s volumes, `incise_mesh`'s tetrahedra), not
-//! mechanics: scene files, which name a volume and configure a simulation, are read by
-//! `incise_scene`.
+//! This crate knows geometry (`incise_grid`'s volumes, `incise_mesh`'s tetrahedra and triangle
+//! meshes), not mechanics: scene files, which name a volume and configure a simulation, are read
+//! by `incise_scene`.
 
 mod error;
 mod gzip;
@@ -22,6 +27,7 @@ mod inr;
 mod nifti;
 mod samples;
 mod tet_mesh;
+mod tri_mesh;
 
 #[cfg(test)]
 mod fuzz;
@@ -34,6 +40,9 @@ pub use tet_mesh::{
     decode_vtk_legacy, decode_vtk_legacy_with, decode_vtu, decode_vtu_with, encode_gmsh22,
     encode_gmsh41_binary, encode_vtk_legacy, encode_vtk_legacy_binary, encode_vtu,
     encode_vtu_binary, read_tet_mesh, read_tet_mesh_with,
+};
+pub use tri_mesh::{
+    decode_obj, decode_stl, encode_obj, encode_stl_ascii, encode_stl_binary, read_tri_mesh,
 };
 
 use incise_grid::LabelVolume;

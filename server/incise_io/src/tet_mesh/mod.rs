@@ -204,16 +204,16 @@ fn vtk_cell_name(kind: i64) -> String {
 // Shared pieces
 
 /// The UTF-8 byte-order mark some editors put before text.
-const BOM: &[u8] = b"\xef\xbb\xbf";
+pub(crate) const BOM: &[u8] = b"\xef\xbb\xbf";
 
-fn syntax(file: &str, line: usize, what: impl Into<String>) -> IoError {
+pub(crate) fn syntax(file: &str, line: usize, what: impl Into<String>) -> IoError {
     IoError::Syntax { file: file.to_owned(), line, what: what.into() }
 }
 
 /// Where in a file something is: a line of text, or a byte of binary data, where lines mean
 /// nothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum At {
+pub(crate) enum At {
     Line(usize),
     Byte(usize),
 }
@@ -228,7 +228,7 @@ impl std::fmt::Display for At {
 }
 
 /// An error at `at`: a [`IoError::Syntax`] on a line, a [`IoError::Binary`] at a byte.
-fn error_at(file: &str, at: At, what: impl Into<String>) -> IoError {
+pub(crate) fn error_at(file: &str, at: At, what: impl Into<String>) -> IoError {
     match at {
         At::Line(line) => syntax(file, line, what),
         At::Byte(offset) => {
@@ -246,7 +246,7 @@ fn find_bytes(haystack: &[u8], needle: &[u8], from: usize) -> Option<usize> {
 }
 
 /// `text` quoted and shortened for an error message.
-fn shown(text: &str) -> String {
+pub(crate) fn shown(text: &str) -> String {
     const MAX: usize = 40;
     match text.char_indices().nth(MAX) {
         Some((at, _)) => format!("{:?}…", &text[..at]),
@@ -364,14 +364,14 @@ impl Assembly {
 
 /// Whitespace-separated tokens of a text, with the line each is on.
 #[derive(Clone)]
-struct Tokens<'a> {
+pub(crate) struct Tokens<'a> {
     rest: &'a str,
     /// The line `rest` starts on.
     line: usize,
 }
 
 impl<'a> Tokens<'a> {
-    fn new(text: &'a str, line: usize) -> Self {
+    pub(crate) fn new(text: &'a str, line: usize) -> Self {
         Self { rest: text, line }
     }
 }

@@ -80,7 +80,8 @@ impl SurfaceVertex {
 pub struct Triangle {
     /// Vertex ids, counter-clockwise seen from outside.
     pub v: [u32; 3],
-    /// The marching cube it lies in (padded linear index, module doc).
+    /// The marching cube it lies in (padded linear index, module doc); for a [`crate::TetSurface`]
+    /// the topology's triangle id.
     pub cube: u32,
     /// Label group.
     pub group: u16,

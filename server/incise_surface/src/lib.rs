@@ -12,13 +12,22 @@
 //! - `remesh`: [`Surface::remesh`], the local update after voxels are removed or links severed,
 //!   reporting [`SurfaceChanges`].
 //! - `smooth`: [`Surface::smoothed_rest`], Taubin smoothing that keeps the embedding valid.
+//! - `mapping`: [`SurfaceMapping`], each vertex's trilinear [`Embedding`] in the top-level element
+//!   that owns its voxel, the deformed positions and the transposed force mapping; re-embedding
+//!   after a grid change touches only what changed.
+//! - `tet`: [`TetSurface`], the same interface over the boundary of a tetrahedral mesh (the
+//!   tensor-mass family), mapped by [`SurfaceMapping::identity`].
 //!
 //! Everything is deterministic: ids are handed out in cube order, lowest free slot first.
 
 mod contour;
 mod extract;
+mod mapping;
 mod remesh;
 mod smooth;
+mod tet;
 
 pub use extract::{CanonicalTriangle, Surface, SurfaceOptions, SurfaceVertex, Triangle, VertexKey};
+pub use mapping::{Embedding, SurfaceMapping, changed_elements};
 pub use remesh::SurfaceChanges;
+pub use tet::TetSurface;

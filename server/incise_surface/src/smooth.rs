@@ -70,7 +70,7 @@ impl Surface {
 
     /// Sets the rest position of every live vertex from `positions` (indexed by slot, e.g. from
     /// [`Surface::smoothed_rest`]), clamped to the owner voxel's box grown by half a voxel,  so that
-    /// an embedding takes the smoothed surface. Vertices a later
+    /// a [`crate::SurfaceMapping`] embeds the smoothed surface. Vertices a later
     /// [`Surface::remesh`] creates start at their voxel face centres.
     ///
     /// # Panics

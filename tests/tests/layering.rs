@@ -23,7 +23,8 @@ const PHYSICS: &[&str] = &[
 ];
 
 /// Geometry and file formats.
-const GEOMETRY_AND_IO: &[&str] = &["incise_math", "incise_grid", "incise_mesh", "incise_io"];
+const GEOMETRY_AND_IO: &[&str] =
+    &["incise_math", "incise_grid", "incise_mesh", "incise_surface", "incise_io"];
 
 /// Crates the physics must never pull in, directly or through another crate.
 const HEAVY: &[&str] = &["tokio", "zenoh", "iceoryx2", "mcap", "rerun", "wgpu"];

@@ -343,6 +343,18 @@ impl BranchedGrid {
         e
     }
 
+    /// The top-level element that owns voxel `v`'s material: the element a point inside the voxel
+    /// moves with (an embedded surface vertex, paper 1 §3). `None` when `v` is empty or out of
+    /// range.
+    #[must_use]
+    pub fn voxel_element(&self, v: u32) -> Option<u32> {
+        if v as usize >= self.fine.material.len() {
+            return None;
+        }
+        let e = self.top_owner(v);
+        (e != NONE).then_some(e)
+    }
+
     /// Morton index (eq. 6) of voxel `v` inside its top-level cell.
     fn local_morton(v: u32, dims: [u32; 3], top_level: u32) -> u64 {
         let c = coords(v, dims);

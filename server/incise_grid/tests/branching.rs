@@ -152,3 +152,26 @@ fn bad_grids_are_errors_that_say_why() {
         .unwrap_err();
     assert!(err.to_string().contains("no foreground"), "{err}");
 }
+
+#[test]
+fn voxel_element_names_the_element_that_owns_the_voxel() {
+    for level in 0..=3u32 {
+        let mut grid = tube_grid(level);
+        // Cut the left arm off its base, so owners move to split pieces.
+        let d = grid.fine().dims();
+        let z = UTube::DEFAULT.base_height as u32;
+        let cut: Vec<u32> =
+            (0..d[1]).flat_map(|y| (0..5).map(move |x| x + d[0] * (y + d[1] * z))).collect();
+        grid.apply(&incise_grid::GridEdit { remove_voxels: cut, sever_links: vec![] }).unwrap();
+        let mut owner = vec![None; d.iter().product::<u32>() as usize];
+        for (id, _) in grid.top().elements() {
+            for v in grid.element_voxels(id) {
+                owner[v as usize] = Some(id);
+            }
+        }
+        for (v, o) in owner.iter().enumerate() {
+            assert_eq!(grid.voxel_element(v as u32), *o, "level {level}, voxel {v}");
+        }
+        assert_eq!(grid.voxel_element(owner.len() as u32), None, "out of range");
+    }
+}

@@ -1,0 +1,191 @@
+//! The surface embedded in the deformable elements (paper 1, §3 and Fig. 9): each vertex follows
+//! the top-level element that owns its owner voxel, by the trilinear weights of its rest position
+//! in that element's cell. The same weights map vertex forces (collision response) back to the
+//! nodes as the transpose, so the virtual work of the two agrees exactly.
+//!
+//! A vertex whose weights fall slightly outside `[0, 1]` (smoothed, or on a voxel face at the
+//! cell's border) is extrapolated from its element, which is what keeps it on the element's side
+//! of a cut: the element, not the nearest cell, decides.
+
+use crate::extract::{Surface, SurfaceVertex};
+use crate::remesh::SurfaceChanges;
+use incise_grid::{BranchedGrid, GridChanges, hex8};
+use incise_math::Vec3;
+
+/// How one vertex follows the nodes.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Embedding {
+    /// Node indices in the caller's numbering (unused slots repeat a used node with weight 0).
+    pub nodes: [u32; 8],
+    /// Weights, summing to 1 for a live vertex.
+    pub weights: [f64; 8],
+}
+
+/// Every vertex slot's embedding.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SurfaceMapping {
+    embeddings: Vec<Embedding>,
+    live: Vec<bool>,
+}
+
+/// The top-level elements whose vertices need new embeddings after `changes`: those added
+/// (split pieces), changed (voxels, neighbours or corner nodes) or shrunk; sorted.
+#[must_use]
+pub fn changed_elements(changes: &GridChanges) -> Vec<u32> {
+    let top = &changes.top;
+    let mut out: Vec<u32> = top
+        .elements_added
+        .iter()
+        .map(|&(id, _)| id)
+        .chain(top.elements_changed.iter().copied())
+        .chain(top.elements_shrunk.iter().map(|&(id, _)| id))
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+impl SurfaceMapping {
+    /// Embeds every live vertex of `surface` in `grid`'s top level. `node_index` turns a
+    /// top-level grid node id into the caller's node index (the simulation numbers its nodes
+    /// differently).
+    ///
+    /// # Panics
+    /// If a live vertex's owner voxel is empty in `grid` (the surface was not re-meshed after an
+    /// edit).
+    #[must_use]
+    pub fn embed(surface: &Surface, grid: &BranchedGrid, node_index: &dyn Fn(u32) -> u32) -> Self {
+        let vertices = surface.vertices();
+        let mut m = Self {
+            embeddings: vec![Embedding::default(); vertices.len()],
+            live: vertices.iter().map(|v| v.alive).collect(),
+        };
+        for (i, v) in vertices.iter().enumerate() {
+            if v.alive {
+                m.embeddings[i] = embed_vertex(v, grid, node_index);
+            }
+        }
+        m
+    }
+
+    /// A mapping where vertex `i` is node `i` (surfaces whose vertices are the mesh's own, as for
+    /// the tensor-mass family's [`crate::TetSurface`]).
+    #[must_use]
+    pub fn identity(vertex_count: usize) -> Self {
+        let embeddings = (0..vertex_count as u32)
+            .map(|i| {
+                let mut weights = [0.0; 8];
+                weights[0] = 1.0;
+                Embedding { nodes: [i; 8], weights }
+            })
+            .collect();
+        Self { embeddings, live: vec![true; vertex_count] }
+    }
+
+    /// After a grid change: re-embeds only the vertices whose owner voxel is now in an element
+    /// listed in `changed_elements` (added, changed and shrunk elements; see
+    /// [`changed_elements`]), and the vertices added by the surface change; frees the slots of
+    /// removed vertices. Returns how many were re-embedded.
+    ///
+    /// # Panics
+    /// As [`SurfaceMapping::embed`].
+    pub fn update(
+        &mut self,
+        surface: &Surface,
+        grid: &BranchedGrid,
+        changed_elements: &[u32],
+        surface_changes: &SurfaceChanges,
+        node_index: &dyn Fn(u32) -> u32,
+    ) -> usize {
+        let vertices = surface.vertices();
+        self.embeddings.resize(vertices.len(), Embedding::default());
+        self.live.resize(vertices.len(), false);
+        for &v in &surface_changes.vertices_removed {
+            self.embeddings[v as usize] = Embedding::default();
+            self.live[v as usize] = false;
+        }
+        let mut todo: Vec<u32> = surface_changes.vertices_added.clone();
+        for &e in changed_elements {
+            for voxel in grid.element_voxels(e) {
+                todo.extend(surface.vertices_of_voxel(voxel));
+            }
+        }
+        todo.sort_unstable();
+        todo.dedup();
+        todo.retain(|&v| vertices[v as usize].alive);
+        for &v in &todo {
+            self.embeddings[v as usize] = embed_vertex(&vertices[v as usize], grid, node_index);
+            self.live[v as usize] = true;
+        }
+        todo.len()
+    }
+
+    /// The embedding of vertex slot `vertex`.
+    #[must_use]
+    pub fn embedding(&self, vertex: u32) -> &Embedding {
+        &self.embeddings[vertex as usize]
+    }
+
+    /// Number of vertex slots.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.embeddings.len()
+    }
+
+    /// True when there are no vertex slots.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.embeddings.is_empty()
+    }
+
+    /// Deformed positions of every vertex slot from node positions `x` (free slots get zero).
+    pub fn deformed(&self, x: &[Vec3], out: &mut Vec<Vec3>) {
+        out.clear();
+        out.extend(self.embeddings.iter().zip(&self.live).map(|(e, &live)| {
+            let mut p = [0.0; 3];
+            if live {
+                for (&n, &w) in e.nodes.iter().zip(&e.weights) {
+                    let q = x[n as usize];
+                    for a in 0..3 {
+                        p[a] += w * q[a];
+                    }
+                }
+            }
+            p
+        }));
+    }
+
+    /// The transpose of [`SurfaceMapping::deformed`]: adds each `(vertex, force)` to the nodes
+    /// with the vertex's weights.
+    pub fn add_forces(&self, vertex_forces: &[(u32, Vec3)], node_forces: &mut [Vec3]) {
+        for &(v, f) in vertex_forces {
+            let e = &self.embeddings[v as usize];
+            for (&n, &w) in e.nodes.iter().zip(&e.weights) {
+                let out = &mut node_forces[n as usize];
+                for a in 0..3 {
+                    out[a] += w * f[a];
+                }
+            }
+        }
+    }
+}
+
+/// The embedding of one live vertex.
+fn embed_vertex(
+    v: &SurfaceVertex,
+    grid: &BranchedGrid,
+    node_index: &dyn Fn(u32) -> u32,
+) -> Embedding {
+    let id = grid
+        .voxel_element(v.voxel)
+        .unwrap_or_else(|| panic!("voxel {} owns a surface vertex but is empty", v.voxel));
+    let top = grid.top();
+    let e = top.element(id).expect("the owner of a voxel is a live element");
+    let cell = top.cell_coords(e.cell);
+    let size = grid.element_size();
+    let xi: Vec3 = std::array::from_fn(|a| v.rest[a] / size[a] - f64::from(cell[a]));
+    Embedding {
+        nodes: e.nodes.map(node_index),
+        weights: std::array::from_fn(|n| hex8::shape(n, xi)),
+    }
+}

@@ -131,8 +131,10 @@ fn a_step_is_driven_by_its_inputs_and_refuses_bad_ones() {
             key(rest[a]).total_cmp(&key(rest[b]))
         })
         .unwrap();
-    let push =
-        StepInputs { node_forces: vec![(corner, [0.0, 2.0, 0.0]), (corner, [0.0, 1.0, 0.0])] };
+    let push = StepInputs {
+        node_forces: vec![(corner, [0.0, 2.0, 0.0]), (corner, [0.0, 1.0, 0.0])],
+        ..StepInputs::default()
+    };
     let none = StepInputs::default();
     for _ in 0..20 {
         let a = pushed.step(&push).unwrap();
@@ -164,10 +166,15 @@ fn a_step_is_driven_by_its_inputs_and_refuses_bad_ones() {
     let before = pushed.step(&none).unwrap();
     assert_eq!(twin.step(&none).unwrap().state_hash, before.state_hash);
     let nodes = rest.len();
-    let e = pushed.step(&StepInputs { node_forces: vec![(0, [0.0; 3]), (nodes, [1.0, 0.0, 0.0])] });
+    let e = pushed.step(&StepInputs {
+        node_forces: vec![(0, [0.0; 3]), (nodes, [1.0, 0.0, 0.0])],
+        ..StepInputs::default()
+    });
     assert_eq!(e, Err(InputError::NoSuchNode { entry: 1, node: nodes, nodes }));
     assert!(e.unwrap_err().to_string().contains("node_forces[1]"));
-    let e = pushed.step(&StepInputs { node_forces: vec![(3, [0.0, f64::NAN, 0.0])] }).unwrap_err();
+    let e = pushed
+        .step(&StepInputs { node_forces: vec![(3, [0.0, f64::NAN, 0.0])], ..StepInputs::default() })
+        .unwrap_err();
     assert!(matches!(e, InputError::NotFinite { entry: 0, node: 3, .. }), "{e}");
     assert!(e.to_string().contains("not finite"), "{e}");
     let after = pushed.step(&none).unwrap();
@@ -257,7 +264,7 @@ fn a_tensor_mass_step_is_driven_by_its_inputs_too() {
     let rest = pushed.tet().unwrap().model.rest.clone();
     // The vertex at the origin: on the bottom face, away from the held top (z = 0.1).
     let vertex = (0..rest.len()).find(|&v| rest[v] == [0.0, 0.0, 0.0]).unwrap();
-    let push = StepInputs { node_forces: vec![(vertex, [0.0, 0.5, 0.0])] };
+    let push = StepInputs { node_forces: vec![(vertex, [0.0, 0.5, 0.0])], ..StepInputs::default() };
     let none = StepInputs::default();
     for _ in 0..20 {
         pushed.step(&push).unwrap();
@@ -266,9 +273,14 @@ fn a_tensor_mass_step_is_driven_by_its_inputs_too() {
     // 0.5 N for 2 ms on a vertex of a few grams: micrometres, far above rounding.
     let dy = pushed.state().x[vertex][1] - still.state().x[vertex][1];
     assert!(dy > 1e-7, "the pushed vertex moved {dy:e} m along y");
-    let e = pushed.step(&StepInputs { node_forces: vec![(rest.len(), [0.0; 3])] }).unwrap_err();
+    let e = pushed
+        .step(&StepInputs { node_forces: vec![(rest.len(), [0.0; 3])], ..StepInputs::default() })
+        .unwrap_err();
     assert!(matches!(e, InputError::NoSuchNode { node, .. } if node == rest.len()), "{e}");
-    let e = pushed.step(&StepInputs { node_forces: vec![(vertex, [f64::INFINITY, 0.0, 0.0])] });
+    let e = pushed.step(&StepInputs {
+        node_forces: vec![(vertex, [f64::INFINITY, 0.0, 0.0])],
+        ..StepInputs::default()
+    });
     assert!(matches!(e, Err(InputError::NotFinite { node, .. }) if node == vertex), "{e:?}");
     // Neither refusal changed anything: both go on with the same step on the same state.
     let (a, b) = (pushed.step(&none).unwrap(), still.step(&none).unwrap());

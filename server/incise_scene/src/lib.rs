@@ -8,8 +8,9 @@
 use incise_grid::LabelVolume;
 use incise_io::{IoError, MeshOptions};
 use incise_mesh::TetMesh;
-use incise_sim::config::{Model, TetSource, VolumeSpec};
+use incise_sim::config::{Model, ShapeSpec, TetSource, VolumeSpec};
 use incise_sim::{Geometry, SceneConfig};
+use incise_tool::Shape;
 use std::path::Path;
 
 /// Why a scene file could not be read.
@@ -87,8 +88,9 @@ pub fn read_scene(path: &Path) -> Result<Scene, SceneFileError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path)
         .map_err(|source| SceneFileError::Read { file: file.clone(), source })?;
-    let config = SceneConfig::from_toml(&text, &file)?;
+    let mut config = SceneConfig::from_toml(&text, &file)?;
     let base = path.parent().unwrap_or_else(|| Path::new("."));
+    load_tool_meshes(&mut config, base, &file)?;
     let mut notes = Vec::new();
     let geometry = match &config.model {
         Model::TensorMass(tm) => match &tm.source {
@@ -111,6 +113,31 @@ pub fn read_scene(path: &Path) -> Result<Scene, SceneFileError> {
         Model::Hexahedra(hex) => volume_of(&config, &hex.volume, base)?,
     };
     Ok(Scene { config, geometry, notes })
+}
+
+/// Reads the tools' mesh files (relative to `base`) into their shapes.
+fn load_tool_meshes(
+    config: &mut SceneConfig,
+    base: &Path,
+    file: &str,
+) -> Result<(), SceneFileError> {
+    for tool in &mut config.tools {
+        let name = tool.name.clone();
+        for (which, spec) in [("outer", Some(&mut tool.outer)), ("inner", tool.inner.as_mut())] {
+            let Some(spec) = spec else { continue };
+            let ShapeSpec::Mesh { path, unit, offset } = spec else { continue };
+            let mesh = incise_io::read_tri_mesh(&base.join(&*path))?;
+            let mesh = mesh.scaled(1.0 / unit.per_metre());
+            let shape = Shape::mesh(&mesh, *offset).map_err(|e| {
+                SceneFileError::Scene(incise_sim::SceneError::Build {
+                    file: file.to_owned(),
+                    message: format!("tool {name:?}: its {which} mesh {path}: {e}"),
+                })
+            })?;
+            *spec = ShapeSpec::Shape(shape);
+        }
+    }
+    Ok(())
 }
 
 /// The label volume `volume` describes: built when procedural, read relative to `base` when a

@@ -53,5 +53,6 @@ pub mod simulation;
 
 pub use config::{SceneConfig, SceneError};
 pub use simulation::{
-    CutError, Frame, Geometry, InputError, Simulation, StageCounters, StepInputs,
+    CutError, CutEvent, Frame, Geometry, InputError, OrganSurface, Simulation, StageCounters,
+    StepInputs, SurgicalFrame, ToolFrame, ToolInput,
 };

@@ -12,18 +12,24 @@ use crate::regions::{
     empty_region_hold, fixed_at, fixed_nodes, missing_label_holds, patch_forces, patch_loads,
     spread_patches,
 };
+use incise_fem::forcefield::ForceField;
 use incise_fem::forcefield::tet::element::Fibre;
 use incise_fem::forcefield::tet::incompressible::Incompressibility;
 use incise_fem::forcefield::tet::{Lame, TensorMassForceField, TetMaterial, TetModel};
 use incise_fem::linsolve::cg::CgSettings;
 use incise_fem::model::{Loads, State};
 use incise_fem::ode::central_difference::CentralDifference;
-use incise_fem::ode::{BackwardEuler, explicit_step, stable_dt, static_solve_with};
+use incise_fem::ode::{BackwardEuler, explicit_step_fields, stable_dt, static_solve_with};
 use incise_fem::{Executor, FixedNodes, HexForceField, HexModel};
 use incise_grid::{BranchedGrid, EditError, GridChanges, GridEdit, LabelVolume, MaterialTable};
 use incise_math::Vec3;
 use incise_mesh::{TetMesh, TetTopology};
 use std::time::Instant;
+
+mod surgery;
+
+pub use surgery::{CutEvent, OrganSurface, SurgicalFrame, ToolFrame, ToolInput};
+use surgery::{Surgery, ToolSprings};
 
 /// Per-step counters (timings are measurements, not part of the deterministic state).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -49,6 +55,25 @@ pub struct StageCounters {
     /// Tensor-mass scenes: vertices using non-linear elasticity (all for SVK, none for linear,
     /// those past the threshold with adaptive non-linearity).
     pub nonlinear_vertices: usize,
+    /// Wall time (ns) of the integrator's step, whatever the integrator: what the frame
+    /// benchmark reports as the solve.
+    pub mechanics_ns: u64,
+    /// Scenes with tools, the frame's stages (ns): finding the contacts and grasps.
+    pub contact_ns: u64,
+    /// Finding what the tools cut.
+    pub cut_ns: u64,
+    /// Updating the grid, the model and the solver state for a cut (or removing tetrahedra).
+    pub grid_ns: u64,
+    /// Deforming the surface and re-meshing and re-embedding it after a cut.
+    pub surface_ns: u64,
+    /// Springs the tools put on the surface (contact and grasp).
+    pub contact_points: usize,
+    /// Voxels a cut removed this step.
+    pub voxels_removed: usize,
+    /// Links a cut severed this step.
+    pub links_severed: usize,
+    /// Tetrahedra a cut removed this step.
+    pub tets_removed: usize,
 }
 
 /// What drives one step from outside the scene (a haptic tool's contact, a script, a test):
@@ -60,6 +85,11 @@ pub struct StepInputs {
     /// tensor-mass vertex), in the model's node order as of this step (a cut renumbers them).
     /// Several forces on one node add up; a force on a fixed node is held by the fixture.
     pub node_forces: Vec<(usize, Vec3)>,
+    /// Poses for the scene's tools this step (a tool given none keeps its scripted or last
+    /// pose). A pose is checked when it is built ([`incise_tool::ToolPose::new`]: finite, unit
+    /// quaternion); a tool index the scene lacks, or a gripper angle that is not finite and ≥ 0,
+    /// is refused here.
+    pub tools: Vec<ToolInput>,
 }
 
 /// Inputs [`Simulation::step`] refused; the step was not taken and the state is unchanged.
@@ -85,6 +115,28 @@ pub enum InputError {
         /// The force given.
         force: Vec3,
     },
+    /// A pose for a tool the scene does not have.
+    #[error("tools[{entry}]: tool {tool} does not exist (the scene has {tools} tools)")]
+    NoSuchTool {
+        /// Index into `tools`.
+        entry: usize,
+        /// The tool named.
+        tool: usize,
+        /// Tools in the scene.
+        tools: usize,
+    },
+    /// A gripper angle that is not finite or is negative.
+    #[error("tools[{entry}]: the gripper angle {gripper} rad is not a finite angle ≥ 0")]
+    BadGripper {
+        /// Index into `tools`.
+        entry: usize,
+        /// The angle given.
+        gripper: f64,
+    },
+    /// A cut the tools made was refused by the grid (an internal error: the tools only name
+    /// voxels and links the grid has).
+    #[error("the tools' cut: {0}")]
+    Cut(#[from] CutError),
 }
 
 /// The result of one step.
@@ -100,6 +152,8 @@ pub struct Frame {
     pub state_hash: u64,
     /// Counters.
     pub counters: StageCounters,
+    /// The tools' part: their forces and linearisations, the cuts, the surface's changes.
+    pub surgical: SurgicalFrame,
 }
 
 /// What a scene is built on: a label volume as read (the scene's label filter and stride are
@@ -231,6 +285,8 @@ pub struct Simulation {
     fixed: FixedNodes,
     state: State,
     index: u64,
+    /// The tools and the surface they act on (scenes with `[[tools]]`).
+    surgery: Option<Box<Surgery>>,
 }
 
 fn fnv(state: &State) -> u64 {
@@ -344,11 +400,35 @@ impl Simulation {
                 State { x: tet.model.rest.clone(), v: vec![[0.0; 3]; tet.model.vertex_count()] }
             }
         };
-        Ok(Self { config, calibration, body, fixed, state, index: 0 })
+        let surgery = if config.tools.is_empty() {
+            None
+        } else {
+            let surface = match &body {
+                Body::Hex(hex) => {
+                    if matches!(hex.stepper, HexStepper::Static { .. }) {
+                        return Err(build(
+                            "[[tools]]: a static scene has no time for a tool to move in; use \
+                             integrator.kind = \"implicit-euler\" or \"explicit\""
+                                .into(),
+                        ));
+                    }
+                    OrganSurface::voxels(&hex.grid, &hex.model, &surgery::surface_options())
+                }
+                Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
+            };
+            Some(Box::new(Surgery::new(&config.tools, surface).map_err(build)?))
+        };
+        Ok(Self { config, calibration, body, fixed, state, index: 0, surgery })
     }
 
     /// Advances one step, driven by `inputs`; refuses them (and takes no step) if a force is
-    /// not finite or names a node the model does not have.
+    /// not finite or names a node the model does not have, or a tool input names a tool the
+    /// scene does not have or has a bad gripper angle.
+    ///
+    /// With tools posed, the step is the surgical frame: contact, grasping and cutting (the
+    /// grid, model, solver state and surface updated locally), then the mechanics with the
+    /// tools' springs beside the tissue, then each tool's force and linearisation
+    /// ([`Frame::surgical`]).
     pub fn step(&mut self, inputs: &StepInputs) -> Result<Frame, InputError> {
         let start = Instant::now();
         let nodes = self.state.x.len();
@@ -360,6 +440,28 @@ impl Simulation {
                 return Err(InputError::NotFinite { entry, node, force });
             }
         }
+        self.check_tools(inputs)?;
+        let mut counters = StageCounters::default();
+        let mut surgical = SurgicalFrame::default();
+        let mut springs = self.prepare_tools(inputs, &mut counters, &mut surgical)?;
+        let t = Instant::now();
+        self.advance(inputs, springs.as_mut(), &mut counters);
+        counters.mechanics_ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        if let Some(springs) = &springs {
+            self.finish_tools(springs, &mut surgical);
+        }
+        Ok(self.finish(start, counters, surgical))
+    }
+
+    /// The mechanics of one step: the integrator under the scene's loads, `inputs`' node forces
+    /// and the tools' springs.
+    fn advance(
+        &mut self,
+        inputs: &StepInputs,
+        springs: Option<&mut ToolSprings>,
+        counters: &mut StageCounters,
+    ) {
+        let nodes = self.state.x.len();
         // The scene's own nodal loads plus this step's forces (none: the scene's, not copied).
         let with_inputs = |scene: &[Vec3]| -> Option<Vec<Vec3>> {
             if inputs.node_forces.is_empty() {
@@ -373,7 +475,7 @@ impl Simulation {
             }
             Some(f)
         };
-        let mut counters = StageCounters::default();
+        let tools = springs.map(|s| &mut s.field);
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
             Body::Tet(tet) => {
@@ -381,11 +483,13 @@ impl Simulation {
                     &mut **tet;
                 let external = with_inputs(&loads.nodal);
                 let mut elastic = force_field.bind(model, topology, penalty.as_ref());
+                let mut fields: Vec<&mut dyn ForceField> = vec![&mut elastic];
+                fields.extend(tools.map(|t| t as &mut dyn ForceField));
                 match stepper {
                     TetStepper::Explicit(cd) => {
                         cd.step_fields(
                             model,
-                            &mut [&mut elastic],
+                            &mut fields,
                             &self.fixed,
                             external.as_deref().unwrap_or(&loads.nodal),
                             &mut self.state.x,
@@ -396,7 +500,7 @@ impl Simulation {
                         let driven = external.map(|nodal| Loads { gravity: [0.0; 3], nodal });
                         let r = be.step_fields(
                             model,
-                            &mut [&mut elastic],
+                            &mut fields,
                             &self.fixed,
                             driven.as_ref().unwrap_or(loads),
                             &mut self.state,
@@ -406,14 +510,14 @@ impl Simulation {
                     }
                 }
                 counters.nonlinear_vertices = force_field.nonlinear_count();
-                return Ok(self.finish(start, counters));
+                return;
             }
         };
         let driven =
             with_inputs(&hex.loads.nodal).map(|nodal| Loads { gravity: hex.loads.gravity, nodal });
         let loads = driven.as_ref().unwrap_or(&hex.loads);
-        match &mut hex.stepper {
-            HexStepper::Implicit(be) => {
+        match (&mut hex.stepper, tools) {
+            (HexStepper::Implicit(be), None) => {
                 let r =
                     be.step(&hex.model, &mut hex.force_field, &self.fixed, loads, &mut self.state);
                 counters.solver_iterations = r.iterations;
@@ -422,11 +526,30 @@ impl Simulation {
                 (counters.rotations_ns, counters.solve_ns, counters.update_ns) =
                     (t.rotations_ns, t.solve_ns, t.update_ns);
             }
-            HexStepper::Explicit { dt, alpha, substeps, .. } => {
+            // With tools the springs join the tissue: the system is solved through the fields'
+            // products (block-Jacobi CG), whose preconditioner includes the contact's blocks.
+            (HexStepper::Implicit(be), Some(tools)) => {
+                let mut elastic = hex.force_field.bind(&hex.model);
+                let r = be.step_fields(
+                    &hex.model,
+                    &mut [&mut elastic, tools],
+                    &self.fixed,
+                    loads,
+                    &mut self.state,
+                );
+                counters.solver_iterations = r.iterations;
+                counters.solver_residual = r.relative_residual;
+            }
+            (HexStepper::Explicit { dt, alpha, substeps, .. }, mut tools) => {
                 for _ in 0..*substeps {
-                    explicit_step(
+                    let mut elastic = hex.force_field.bind(&hex.model);
+                    let mut fields: Vec<&mut dyn ForceField> = vec![&mut elastic];
+                    if let Some(t) = tools.as_deref_mut() {
+                        fields.push(t);
+                    }
+                    explicit_step_fields(
                         &hex.model,
-                        &mut hex.force_field,
+                        &mut fields,
                         &self.fixed,
                         loads,
                         *alpha,
@@ -436,7 +559,7 @@ impl Simulation {
                 }
                 counters.substeps = *substeps;
             }
-            HexStepper::Static { tolerance, cholesky } => {
+            (HexStepper::Static { tolerance, cholesky }, _) => {
                 let r = static_solve_with(
                     &hex.model,
                     &mut hex.force_field,
@@ -451,10 +574,14 @@ impl Simulation {
                 counters.solver_residual = r.relative_residual;
             }
         }
-        Ok(self.finish(start, counters))
     }
 
-    fn finish(&mut self, start: Instant, mut counters: StageCounters) -> Frame {
+    fn finish(
+        &mut self,
+        start: Instant,
+        mut counters: StageCounters,
+        surgical: SurgicalFrame,
+    ) -> Frame {
         self.index += 1;
         counters.step_ns = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
         Frame {
@@ -463,6 +590,7 @@ impl Simulation {
             positions: self.state.x.clone(),
             state_hash: fnv(&self.state),
             counters,
+            surgical,
         }
     }
 
@@ -478,7 +606,18 @@ impl Simulation {
     /// supported there, and the change list returned is empty (see [`Simulation::tet`]). A mesh
     /// read from a file has no voxels: naming any is [`CutError::NoVoxels`] (see
     /// [`Simulation::remove_tets`]).
+    ///
+    /// The organ's surface, where there is one, is re-meshed and re-embedded locally.
     pub fn cut(&mut self, edit: &GridEdit) -> Result<GridChanges, CutError> {
+        let changes = self.cut_grid(edit)?;
+        if changes != GridChanges::default() || self.tet().is_some() {
+            self.surface_after_cut(Some(edit), Some(&changes));
+        }
+        Ok(changes)
+    }
+
+    /// [`Self::cut`] without the surface.
+    fn cut_grid(&mut self, edit: &GridEdit) -> Result<GridChanges, CutError> {
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
             Body::Tet(tet) => {
@@ -528,7 +667,17 @@ impl Simulation {
     /// (paper 2 §3.2); the vertices stay, so the state and the node numbering do not change.
     /// Returns every tetrahedron removed, in order of removal (none for one already removed).
     /// An index beyond the mesh is refused before anything is removed.
+    /// The boundary surface, where there is one, follows.
     pub fn remove_tets(&mut self, tets: &[usize]) -> Result<Vec<usize>, CutError> {
+        let removed = self.remove_tets_only(tets)?;
+        if !removed.is_empty() {
+            self.surface_after_cut(None, None);
+        }
+        Ok(removed)
+    }
+
+    /// [`Self::remove_tets`] without the surface.
+    fn remove_tets_only(&mut self, tets: &[usize]) -> Result<Vec<usize>, CutError> {
         let Body::Tet(tet) = &mut self.body else { return Err(CutError::NotTetrahedra) };
         let count = tet.mesh.tets().len();
         if let Some(&bad) = tets.iter().find(|&&t| t >= count) {

@@ -522,10 +522,8 @@ fn tools_are_scene_keys() {
         (scalpel.name.as_str(), scalpel.cutting, scalpel.stiffness),
         ("scalpel", Cutting::Remove, 400.0)
     );
-    let Some(ShapeSpec::Primitive(inner)) = &scalpel.inner else {
-        panic!("an analytic inner shape")
-    };
-    assert!(matches!(inner.primitive(), Primitive::Blade { .. }));
+    let Some(ShapeSpec::Shape(inner)) = &scalpel.inner else { panic!("an analytic inner shape") };
+    assert!(matches!(inner.primitive(), Some(Primitive::Blade { .. })));
     let path = scalpel.path.as_ref().unwrap();
     let halfway = path.at(0.5);
     assert!((halfway.pose.position()[2] - 0.03).abs() < 1e-15);

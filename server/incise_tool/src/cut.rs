@@ -67,7 +67,7 @@ impl SweptBlade {
     /// `from` to `to`, sampled every `link` / 2 of travel.
     #[must_use]
     pub fn new(blade: &Shape, from: &Pose, to: &Pose, link: f64) -> Option<Self> {
-        let Primitive::Blade { length, height, .. } = blade.primitive() else { return None };
+        let Some(Primitive::Blade { length, height, .. }) = blade.primitive() else { return None };
         let (lo, hi) = blade.bounds();
         let mut travel: f64 = 0.0;
         for corner in 0..8 {

@@ -2,7 +2,8 @@
 //! tissue and an inner shape that cuts it.
 //!
 //! - [`pose`]: checked poses (finite, unit quaternion), frames, interpolation;
-//! - [`shape`]: analytic shapes by signed distance (sphere, capsule, cuboid, blade);
+//! - [`shape`]: shapes by signed distance: analytic (sphere, capsule, cuboid, blade) or a closed
+//!   triangle mesh ([`mesh_shape`]);
 //! - [`contact`]: penalty contact of the outer shape with the surface, as springs on embedded
 //!   points (a force field of `incise_fem`), swept so a fast tool does not tunnel, and its
 //!   linearisation with respect to the pose for the haptic loop;
@@ -16,6 +17,7 @@
 pub mod contact;
 pub mod cut;
 pub mod grasp;
+pub mod mesh_shape;
 pub mod path;
 pub mod pose;
 pub mod shape;

@@ -6,7 +6,9 @@
 //! tool frame's origin, the shaft along `+z`; each shape may be offset within the frame, so an
 //! inner (cutting) shape sits where the blade's edge is inside the outer (repulsion) shape.
 
+use crate::mesh_shape::MeshShape;
 use incise_math::Vec3;
+use std::sync::Arc;
 
 /// An analytic primitive in its own frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -50,11 +52,18 @@ pub struct ShapeError {
     pub what: String,
 }
 
-/// A primitive placed in the tool frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// What a shape is made of.
+#[derive(Clone, Debug, PartialEq)]
+enum Kind {
+    Primitive(Primitive),
+    Mesh(Arc<MeshShape>),
+}
+
+/// A primitive or a closed mesh placed in the tool frame.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Shape {
-    primitive: Primitive,
-    /// Where the primitive's origin is in the tool frame (m).
+    kind: Kind,
+    /// Where the primitive's (or the mesh's) origin is in the tool frame (m).
     offset: Vec3,
 }
 
@@ -82,13 +91,25 @@ impl Shape {
         if !offset.iter().all(|c| c.is_finite()) {
             return Err(ShapeError { what: format!("offset {offset:?} is not finite") });
         }
-        Ok(Self { primitive, offset })
+        Ok(Self { kind: Kind::Primitive(primitive), offset })
     }
 
-    /// The primitive.
+    /// A closed triangle mesh (in metres, its own frame) with its origin at `offset` in the tool
+    /// frame.
+    pub fn mesh(mesh: &incise_mesh::TriMesh, offset: Vec3) -> Result<Self, ShapeError> {
+        if !offset.iter().all(|c| c.is_finite()) {
+            return Err(ShapeError { what: format!("offset {offset:?} is not finite") });
+        }
+        Ok(Self { kind: Kind::Mesh(Arc::new(MeshShape::new(mesh))), offset })
+    }
+
+    /// The primitive (`None` for a mesh).
     #[must_use]
-    pub fn primitive(&self) -> Primitive {
-        self.primitive
+    pub fn primitive(&self) -> Option<Primitive> {
+        match &self.kind {
+            Kind::Primitive(p) => Some(*p),
+            Kind::Mesh(_) => None,
+        }
     }
 
     /// The signed distance (m, negative inside) of tool-frame point `q`, and the outward unit
@@ -96,7 +117,11 @@ impl Shape {
     #[must_use]
     pub fn distance(&self, q: Vec3) -> (f64, Vec3) {
         let p: Vec3 = std::array::from_fn(|k| q[k] - self.offset[k]);
-        match self.primitive {
+        let primitive = match &self.kind {
+            Kind::Primitive(primitive) => *primitive,
+            Kind::Mesh(mesh) => return mesh.distance(p),
+        };
+        match primitive {
             Primitive::Sphere { radius } => ball(p, radius),
             Primitive::Capsule { radius, length } => {
                 ball([p[0], p[1], p[2] - p[2].clamp(0.0, length)], radius)
@@ -112,7 +137,17 @@ impl Shape {
     /// The shape's bounding box in the tool frame, `(min, max)`.
     #[must_use]
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        let (lo, hi) = match self.primitive {
+        let primitive = match &self.kind {
+            Kind::Primitive(primitive) => *primitive,
+            Kind::Mesh(mesh) => {
+                let (lo, hi) = mesh.bounds();
+                return (
+                    std::array::from_fn(|k| lo[k] + self.offset[k]),
+                    std::array::from_fn(|k| hi[k] + self.offset[k]),
+                );
+            }
+        };
+        let (lo, hi) = match primitive {
             Primitive::Sphere { radius } => ([-radius; 3], [radius; 3]),
             Primitive::Capsule { radius, length } => {
                 ([-radius, -radius, -radius], [radius, radius, length + radius])
@@ -130,9 +165,19 @@ impl Shape {
 
     /// The shape's thinnest dimension (m): a moving tool is tested for crossing points at
     /// sub-steps shorter than half of it, so that nothing passes through it between two tests.
+    /// For a mesh, the smallest extent of its bounding box (an upper bound for a mesh with
+    /// thinner parts inside its box; such a tool moving fast is sampled more coarsely than its
+    /// thinnest part).
     #[must_use]
     pub fn thinnest(&self) -> f64 {
-        match self.primitive {
+        let primitive = match &self.kind {
+            Kind::Primitive(primitive) => *primitive,
+            Kind::Mesh(mesh) => {
+                let (lo, hi) = mesh.bounds();
+                return (0..3).map(|k| hi[k] - lo[k]).fold(f64::INFINITY, f64::min);
+            }
+        };
+        match primitive {
             Primitive::Sphere { radius } | Primitive::Capsule { radius, .. } => 2.0 * radius,
             Primitive::Cuboid { half_extents } => {
                 2.0 * half_extents.iter().copied().fold(f64::INFINITY, f64::min)

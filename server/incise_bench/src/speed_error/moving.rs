@@ -138,7 +138,10 @@ impl Scene {
                     .collect();
                 let share = 1.0 / patch.len().max(1) as f64;
                 let f = self.force.map(|c| c * share);
-                StepInputs { node_forces: patch.into_iter().map(|n| (n, f)).collect() }
+                StepInputs {
+                    node_forces: patch.into_iter().map(|n| (n, f)).collect(),
+                    ..StepInputs::default()
+                }
             })
             .collect()
     }

@@ -67,10 +67,11 @@ pub enum Cutting {
 /// A shape as the scene gives it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ShapeSpec {
-    /// An analytic shape.
-    Primitive(Shape),
+    /// A shape ready to use: an analytic one, or a mesh file the scene reader has read.
+    Shape(Shape),
     /// A closed triangle mesh file (`.stl`, `.obj`), relative to the scene file, in `unit`,
-    /// offset in the tool frame; read by the caller (`incise_scene`).
+    /// offset in the tool frame, not read yet (`incise_scene::read_scene` reads it and turns it
+    /// into a [`ShapeSpec::Shape`]).
     Mesh {
         /// The file.
         path: String,
@@ -185,9 +186,9 @@ impl Checker<'_> {
                             "needs an `inner` shape: the part of the tool that cuts",
                         ));
                     }
-                    Some(ShapeSpec::Primitive(s))
+                    Some(ShapeSpec::Shape(s))
                         if cutting == Cutting::Separate
-                            && !matches!(s.primitive(), Primitive::Blade { .. }) =>
+                            && !matches!(s.primitive(), Some(Primitive::Blade { .. })) =>
                     {
                         return Err(self.invalid(
                             span,
@@ -330,7 +331,7 @@ impl Checker<'_> {
             },
         };
         Shape::new(primitive, offset)
-            .map(ShapeSpec::Primitive)
+            .map(ShapeSpec::Shape)
             .map_err(|e| self.invalid(s.span(), key, e.to_string()))
     }
 

@@ -1,0 +1,489 @@
+//! The surgical frame (Jeřábková 2010, §3; §4.1 for where its time goes): each step the posed
+//! tools push the organ's surface with their outer shapes (contact), cut with their inner
+//! shapes, and hold with their jaws; a cut updates the grid, the model and solver state, and the
+//! surface locally, in that order, within the step; then the mechanics is solved with the
+//! contact and grasp springs as force fields beside the tissue's, and each tool's force, torque
+//! and their linearisation in the pose are read from the springs at the new positions.
+//!
+//! A tool that is given no pose (and has no scripted path) takes no part; one that stops being
+//! given poses stays where it was last put, as a hand that lets go of a haptic device leaves
+//! the instrument in place.
+
+mod cut;
+mod surface;
+
+pub use surface::OrganSurface;
+
+use super::{CutError, InputError, Simulation, StageCounters, StepInputs};
+use crate::config::{Cutting, ShapeSpec, ToolSpec};
+use cut::DeformedGrid;
+use incise_fem::Executor;
+use incise_fem::forcefield::springs::{EmbeddedSpring, EmbeddedSprings};
+use incise_grid::GridEdit;
+use incise_math::Vec3;
+use incise_surface::{SurfaceChanges, SurfaceOptions};
+use incise_tool::{
+    Contact, ContactSettings, Grasp, GraspEvent, Linearisation, Pose, Shape, SweptBlade, ToolPose,
+    detect,
+};
+use std::ops::Range;
+use std::time::Instant;
+
+/// A pose for one of the scene's tools, for one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ToolInput {
+    /// The tool's index in the scene's `[[tools]]`.
+    pub tool: usize,
+    /// Where it is, and its gripper angle.
+    pub pose: ToolPose,
+}
+
+/// What one tool did in a step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ToolFrame {
+    /// The pose it had this step (`None`: it takes no part yet).
+    pub pose: Option<ToolPose>,
+    /// Surface points its outer shape pushes.
+    pub contact_points: usize,
+    /// Of those, points its motion swept over since the last step (carried, not tunnelled).
+    pub swept_points: usize,
+    /// Points its jaws hold.
+    pub held_points: usize,
+    /// What its jaws did.
+    pub grasp: GraspEvent,
+    /// The force and torque the tissue puts on it at the end of the step, and their derivative
+    /// in its pose, for a haptic loop to extrapolate between steps.
+    pub linearisation: Linearisation,
+}
+
+impl ToolFrame {
+    /// The force on the tool (N).
+    #[must_use]
+    pub fn force(&self) -> Vec3 {
+        self.linearisation.force
+    }
+
+    /// The torque on the tool about its origin (N·m).
+    #[must_use]
+    pub fn torque(&self) -> Vec3 {
+        self.linearisation.torque
+    }
+}
+
+/// A cut a tool made in a step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CutEvent {
+    /// The tool's index.
+    pub tool: usize,
+    /// Fine voxels removed.
+    pub voxels_removed: usize,
+    /// Links between voxels severed.
+    pub links_severed: usize,
+    /// Tetrahedra removed (tensor-mass scenes).
+    pub tets_removed: usize,
+}
+
+/// What the surgical part of a step adds to its frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SurgicalFrame {
+    /// Each tool's part, in scene order (empty in a scene without tools).
+    pub tools: Vec<ToolFrame>,
+    /// The cuts made.
+    pub cuts: Vec<CutEvent>,
+    /// How the surface changed.
+    pub surface: SurfaceChanges,
+}
+
+/// One tool as the simulation drives it.
+pub(crate) struct ToolRig {
+    spec: ToolSpec,
+    outer: Shape,
+    inner: Option<Shape>,
+    pose: Option<ToolPose>,
+    /// Its pose at the previous step, for the swept tests.
+    previous: Option<Pose>,
+    grasp: Grasp,
+}
+
+/// The tools and the surface they act on.
+pub(crate) struct Surgery {
+    rigs: Vec<ToolRig>,
+    surface: OrganSurface,
+    /// Deformed surface positions and velocities at the start of the step (per vertex slot).
+    positions: Vec<Vec3>,
+    velocities: Vec<Vec3>,
+}
+
+/// The springs of the step's tools: all of them as one field, and which belong to which tool.
+pub(crate) struct ToolSprings {
+    pub(crate) field: EmbeddedSprings,
+    ranges: Vec<Option<Range<usize>>>,
+}
+
+impl Surgery {
+    /// The tools of `tools` on `surface`; refuses a shape the scene reader did not load.
+    pub(crate) fn new(tools: &[ToolSpec], surface: OrganSurface) -> Result<Self, String> {
+        let shape = |s: &ShapeSpec, name: &str, which: &str| match s {
+            ShapeSpec::Shape(shape) => Ok(shape.clone()),
+            ShapeSpec::Mesh { path, .. } => Err(format!(
+                "tool {name:?}: its {which} shape is the mesh file {path}, which was not read \
+                 (scenes with mesh tools are read by incise_scene::read_scene)"
+            )),
+        };
+        let rigs = tools
+            .iter()
+            .map(|t| {
+                Ok(ToolRig {
+                    outer: shape(&t.outer, &t.name, "outer")?,
+                    inner: t.inner.as_ref().map(|s| shape(s, &t.name, "inner")).transpose()?,
+                    spec: t.clone(),
+                    pose: None,
+                    previous: None,
+                    grasp: Grasp::default(),
+                })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        Ok(Self { rigs, surface, positions: Vec::new(), velocities: Vec::new() })
+    }
+
+    /// The tools' count.
+    pub(crate) fn tool_count(&self) -> usize {
+        self.rigs.len()
+    }
+}
+
+/// The default surface of a scene: one closed surface of all the organ's materials.
+pub(crate) fn surface_options() -> SurfaceOptions {
+    SurfaceOptions::default()
+}
+
+impl Simulation {
+    /// Checks this step's tool inputs before anything moves.
+    pub(super) fn check_tools(&self, inputs: &StepInputs) -> Result<(), InputError> {
+        let tools = self.surgery.as_ref().map_or(0, |s| s.tool_count());
+        for (entry, input) in inputs.tools.iter().enumerate() {
+            if input.tool >= tools {
+                return Err(InputError::NoSuchTool { entry, tool: input.tool, tools });
+            }
+            let gripper = input.pose.gripper;
+            if !(gripper.is_finite() && gripper >= 0.0) {
+                return Err(InputError::BadGripper { entry, gripper });
+            }
+        }
+        Ok(())
+    }
+
+    /// The surgical part of a step before the mechanics: poses, contact, grasping, cutting and
+    /// the updates a cut makes. Returns the springs to solve with (`None` when no tool takes
+    /// part).
+    pub(super) fn prepare_tools(
+        &mut self,
+        inputs: &StepInputs,
+        counters: &mut StageCounters,
+        frame: &mut SurgicalFrame,
+    ) -> Result<Option<ToolSprings>, CutError> {
+        let Some(mut surgery) = self.surgery.take() else { return Ok(None) };
+        let result = self.prepare_with(&mut surgery, inputs, counters, frame);
+        self.surgery = Some(surgery);
+        result
+    }
+
+    fn prepare_with(
+        &mut self,
+        surgery: &mut Surgery,
+        inputs: &StepInputs,
+        counters: &mut StageCounters,
+        frame: &mut SurgicalFrame,
+    ) -> Result<Option<ToolSprings>, CutError> {
+        let dt = self.config.dt();
+        let now = self.index as f64 * dt;
+        for (i, rig) in surgery.rigs.iter_mut().enumerate() {
+            rig.previous = rig.pose.map(|p| p.pose);
+            let given = inputs.tools.iter().rev().find(|t| t.tool == i).map(|t| t.pose);
+            let scripted = rig.spec.path.as_ref().map(|p| p.at(now));
+            rig.pose = given.or(scripted).or(rig.pose);
+        }
+        frame.tools = surgery
+            .rigs
+            .iter()
+            .map(|rig| ToolFrame {
+                pose: rig.pose,
+                contact_points: 0,
+                swept_points: 0,
+                held_points: 0,
+                grasp: GraspEvent::None,
+                linearisation: Linearisation::none(
+                    rig.pose.map_or([0.0; 3], |p| p.pose.position()),
+                ),
+            })
+            .collect();
+        if surgery.rigs.iter().all(|r| r.pose.is_none()) {
+            return Ok(None);
+        }
+
+        let t = Instant::now();
+        self.deform_surface(surgery);
+        counters.surface_ns += elapsed(t);
+
+        let t = Instant::now();
+        let mut contacts = self.contacts(surgery, dt);
+        let live = surgery.surface.live_vertices();
+        for (i, rig) in surgery.rigs.iter_mut().enumerate() {
+            let (Some(pose), Some(jaws)) = (rig.pose, rig.spec.jaws) else { continue };
+            let touching = !contacts[i].points.is_empty();
+            let points = live.iter().map(|&v| (v, surgery.positions[v as usize]));
+            frame.tools[i].grasp =
+                rig.grasp.update(&jaws, &pose.pose, pose.gripper, touching, points);
+        }
+        counters.contact_ns += elapsed(t);
+
+        if self.cut_with_tools(surgery, counters, frame)? {
+            // The cut renumbered the nodes and moved the surface: find the contact again on the
+            // surface as it now is (the walls a cut opens inside the outer shape are pushed too).
+            let t = Instant::now();
+            self.deform_surface(surgery);
+            counters.surface_ns += elapsed(t);
+            let t = Instant::now();
+            let surface = &surgery.surface;
+            for rig in &mut surgery.rigs {
+                rig.grasp.retain(|v| surface.is_live(v));
+            }
+            contacts = self.contacts(surgery, dt);
+            counters.contact_ns += elapsed(t);
+        }
+
+        let mut springs: Vec<EmbeddedSpring> = Vec::new();
+        let mut ranges = Vec::with_capacity(surgery.rigs.len());
+        for (i, (rig, contact)) in surgery.rigs.iter().zip(contacts).enumerate() {
+            let Some(pose) = rig.pose else {
+                ranges.push(None);
+                continue;
+            };
+            let start = springs.len();
+            frame.tools[i].contact_points = contact.points.len();
+            frame.tools[i].swept_points = contact.points.iter().filter(|c| c.swept).count();
+            springs.extend(contact.springs);
+            if let Some(jaws) = &rig.spec.jaws {
+                let surface = &surgery.surface;
+                let held = rig.grasp.springs(jaws, &pose.pose, |v| {
+                    surface.is_live(v).then(|| surface.embedding(v))
+                });
+                frame.tools[i].held_points = held.len();
+                springs.extend(held);
+            }
+            ranges.push(Some(start..springs.len()));
+        }
+        counters.contact_points = springs.len();
+        let exec = Executor::single_thread();
+        Ok(Some(ToolSprings { field: EmbeddedSprings::new(springs, exec), ranges }))
+    }
+
+    /// After the mechanics: each tool's force, torque and linearisation at the new positions.
+    pub(super) fn finish_tools(&self, springs: &ToolSprings, frame: &mut SurgicalFrame) {
+        let all = springs.field.springs();
+        for (tool, range) in frame.tools.iter_mut().zip(&springs.ranges) {
+            if let (Some(pose), Some(range)) = (tool.pose, range) {
+                tool.linearisation =
+                    Linearisation::of(&all[range.clone()], &self.state.x, pose.pose.position());
+            }
+        }
+    }
+
+    /// The surface's deformed positions and velocities from the state.
+    fn deform_surface(&self, surgery: &mut Surgery) {
+        let model = self.model();
+        let Surgery { surface, positions, velocities, .. } = surgery;
+        surface.deform(&self.state.x, model, positions);
+        surface.deform(&self.state.v, model, velocities);
+    }
+
+    /// Each tool's contact (empty for a tool without a pose).
+    fn contacts(&self, surgery: &Surgery, dt: f64) -> Vec<Contact> {
+        let Surgery { surface, positions, velocities, rigs } = surgery;
+        let live = surface.live_vertices();
+        rigs.iter()
+            .map(|rig| {
+                let Some(pose) = rig.pose else { return Contact::default() };
+                let settings =
+                    ContactSettings { stiffness: rig.spec.stiffness, damping: rig.spec.damping };
+                let previous = rig.previous.as_ref().map(|p| (p, dt));
+                detect(
+                    &rig.outer,
+                    &pose.pose,
+                    previous,
+                    &settings,
+                    live.iter().map(|&v| (v, positions[v as usize])),
+                    &|v: u32| (velocities[v as usize], surface.embedding(v)),
+                )
+            })
+            .collect()
+    }
+
+    /// Finds what each cutting tool cuts and cuts it; returns whether anything was cut.
+    fn cut_with_tools(
+        &mut self,
+        surgery: &mut Surgery,
+        counters: &mut StageCounters,
+        frame: &mut SurgicalFrame,
+    ) -> Result<bool, CutError> {
+        let t = Instant::now();
+        let mut edit = GridEdit::default();
+        let mut tets: Vec<usize> = Vec::new();
+        let mut events: Vec<CutEvent> = Vec::new();
+        let scattered = self.grid().map(|_| self.positions_by_grid_node());
+        for (i, rig) in surgery.rigs.iter().enumerate() {
+            let (Some(pose), Some(inner)) = (rig.pose, rig.inner.as_ref()) else { continue };
+            let mut event = CutEvent { tool: i, ..CutEvent::default() };
+            match (rig.spec.cutting, self.grid(), &scattered) {
+                (Cutting::Off, ..) => continue,
+                (Cutting::Remove, Some(grid), Some(by_grid_node)) => {
+                    let deformed = DeformedGrid { grid, by_grid_node };
+                    let voxels = cut::voxels_inside(
+                        inner,
+                        &pose.pose,
+                        &deformed,
+                        &surgery.surface,
+                        &surgery.positions,
+                    );
+                    event.voxels_removed = voxels.len();
+                    edit.remove_voxels.extend(voxels);
+                }
+                (Cutting::Separate, Some(grid), Some(by_grid_node)) => {
+                    let deformed = DeformedGrid { grid, by_grid_node };
+                    let from = rig.previous.unwrap_or(pose.pose);
+                    let link = grid.spacing().into_iter().fold(f64::INFINITY, f64::min);
+                    let Some(blade) = SweptBlade::new(inner, &from, &pose.pose, link) else {
+                        continue;
+                    };
+                    let links =
+                        cut::links_crossed(&blade, &deformed, &surgery.surface, &surgery.positions);
+                    event.links_severed = links.len();
+                    edit.sever_links.extend(links);
+                }
+                (_, None, _) | (_, _, None) => {
+                    let Some(tet) = self.tet() else { continue };
+                    let found = cut::tets_inside(inner, &pose.pose, &tet.topology, &self.state.x);
+                    event.tets_removed = found.len();
+                    tets.extend(found);
+                }
+            }
+            if event != (CutEvent { tool: i, ..CutEvent::default() }) {
+                events.push(event);
+            }
+        }
+        counters.cut_ns += elapsed(t);
+        if events.is_empty() {
+            return Ok(false);
+        }
+        edit.remove_voxels.sort_unstable();
+        edit.remove_voxels.dedup();
+        edit.sever_links.sort_unstable();
+        edit.sever_links.dedup();
+        tets.sort_unstable();
+        tets.dedup();
+
+        let t = Instant::now();
+        let changes = if self.grid().is_some() {
+            Some(self.cut_grid(&edit)?)
+        } else {
+            let removed = self.remove_tets_only(&tets)?;
+            counters.tets_removed = removed.len();
+            None
+        };
+        counters.grid_ns += elapsed(t);
+
+        let t = Instant::now();
+        frame.surface = match (&changes, self.grid(), self.model()) {
+            (Some(changes), Some(grid), Some(model)) => {
+                counters.voxels_removed = changes.voxels_removed;
+                counters.links_severed = changes.links_severed;
+                surgery.surface.after_grid_edit(grid, model, &touched(&edit), changes)
+            }
+            _ => match self.tet() {
+                Some(tet) => surgery.surface.after_tet_removal(&tet.topology),
+                None => SurfaceChanges::default(),
+            },
+        };
+        counters.surface_ns += elapsed(t);
+        frame.cuts = events;
+        Ok(true)
+    }
+
+    /// The organ's surface (scenes with tools; [`Simulation::enable_surface`] builds it in
+    /// others).
+    #[must_use]
+    pub fn surface(&self) -> Option<&OrganSurface> {
+        self.surgery.as_ref().map(|s| &s.surface)
+    }
+
+    /// Builds the organ's surface in a scene without tools, so that [`Self::surface`] and
+    /// [`Self::surface_positions`] have it (a scene with tools has it from the start).
+    pub fn enable_surface(&mut self) {
+        if self.surgery.is_some() {
+            return;
+        }
+        let surface = match &self.body {
+            super::Body::Hex(hex) => {
+                OrganSurface::voxels(&hex.grid, &hex.model, &surface_options())
+            }
+            super::Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
+        };
+        self.surgery =
+            Some(Box::new(Surgery::new(&[], surface).expect("no tools: nothing to load")));
+    }
+
+    /// The deformed position of every surface vertex slot now (dead slots hold anything), for
+    /// rendering: index them with [`OrganSurface::triangle_list`].
+    #[must_use]
+    pub fn surface_positions(&self) -> Option<Vec<Vec3>> {
+        let surgery = self.surgery.as_ref()?;
+        let mut out = Vec::new();
+        surgery.surface.deform(&self.state.x, self.model(), &mut out);
+        Some(out)
+    }
+
+    /// After a cut made from outside the tools (`Simulation::cut`, `Simulation::remove_tets`):
+    /// the surface follows.
+    pub(super) fn surface_after_cut(
+        &mut self,
+        edit: Option<&GridEdit>,
+        changes: Option<&incise_grid::GridChanges>,
+    ) {
+        let Some(mut surgery) = self.surgery.take() else { return };
+        match (edit, changes, self.grid(), self.model()) {
+            (Some(edit), Some(changes), Some(grid), Some(model)) => {
+                surgery.surface.after_grid_edit(grid, model, &touched(edit), changes);
+            }
+            _ => {
+                if let Some(tet) = self.tet() {
+                    surgery.surface.after_tet_removal(&tet.topology);
+                }
+            }
+        }
+        self.surgery = Some(surgery);
+    }
+
+    /// The node positions by grid node id (hexahedral scenes).
+    fn positions_by_grid_node(&self) -> Vec<Vec3> {
+        let Some(model) = self.model() else { return Vec::new() };
+        let size = model.grid_node.iter().map(|&g| g as usize + 1).max().unwrap_or(0);
+        let mut out = vec![[0.0; 3]; size];
+        for (p, &g) in self.state.x.iter().zip(&model.grid_node) {
+            out[g as usize] = *p;
+        }
+        out
+    }
+}
+
+/// The voxels an edit touches: those removed and both ends of the links severed, sorted.
+fn touched(edit: &GridEdit) -> Vec<u32> {
+    let mut touched = edit.remove_voxels.clone();
+    touched.extend(edit.sever_links.iter().flat_map(|&(a, b)| [a, b]));
+    touched.sort_unstable();
+    touched.dedup();
+    touched
+}
+
+fn elapsed(t: Instant) -> u64 {
+    u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX)
+}

@@ -1,0 +1,187 @@
+//! The organ's surface as the tools see it: the marching-cubes surface of the fine voxels
+//! embedded in the hexahedra, or the boundary of the tensor-mass tetrahedra.
+//!
+//! The voxel surface's embeddings name grid nodes, not model nodes: a cut renumbers the model's
+//! nodes (they are numbered in grid-node order, compactly), while a surviving grid node keeps
+//! its id, so only the vertices of elements the cut changed need embedding again. Positions are
+//! scattered to grid-node order once per frame to evaluate them.
+
+use incise_fem::HexModel;
+use incise_fem::forcefield::springs::EmbeddedPoint;
+use incise_grid::{BranchedGrid, GridChanges};
+use incise_math::Vec3;
+use incise_mesh::TetTopology;
+use incise_surface::{Surface, SurfaceChanges, SurfaceMapping, SurfaceOptions, TetSurface};
+
+/// The surface of a scene's organ.
+pub enum OrganSurface {
+    /// Marching cubes on the grid's fine voxels, embedded in its top-level elements.
+    Voxels {
+        /// The triangles and vertices.
+        surface: Surface,
+        /// Each vertex's embedding, by grid node id.
+        mapping: SurfaceMapping,
+        /// Model node index of each grid node id (`u32::MAX`: no such node).
+        model_of_grid: Vec<u32>,
+    },
+    /// The boundary of the live tetrahedra; its vertices are the mesh's.
+    Tetrahedra {
+        /// The boundary triangles.
+        surface: TetSurface,
+        /// The vertices on the boundary, sorted.
+        boundary: Vec<u32>,
+    },
+}
+
+impl OrganSurface {
+    /// The voxel surface of `grid` (whose model is `model`).
+    pub fn voxels(grid: &BranchedGrid, model: &HexModel, options: &SurfaceOptions) -> Self {
+        let surface = Surface::extract(grid.fine(), grid.spacing(), options);
+        let mapping = SurfaceMapping::embed(&surface, grid, &|g| g);
+        Self::Voxels { surface, mapping, model_of_grid: model_of_grid(grid, model) }
+    }
+
+    /// The boundary surface of `topology`.
+    pub fn tetrahedra(topology: &TetTopology) -> Self {
+        let surface = TetSurface::new(topology);
+        let boundary = boundary_vertices(&surface);
+        Self::Tetrahedra { surface, boundary }
+    }
+
+    /// Live triangles.
+    pub fn triangle_count(&self) -> usize {
+        match self {
+            Self::Voxels { surface, .. } => surface.triangle_count(),
+            Self::Tetrahedra { surface, .. } => surface.triangle_count(),
+        }
+    }
+
+    /// The live triangles as vertex triples (vertex ids index [`Self::deform`]'s output).
+    pub fn triangle_list(&self) -> Vec<[u32; 3]> {
+        match self {
+            Self::Voxels { surface, .. } => surface.triangle_list(),
+            Self::Tetrahedra { surface, .. } => surface.triangle_list(),
+        }
+    }
+
+    /// The live vertices, in id order.
+    pub fn live_vertices(&self) -> Vec<u32> {
+        match self {
+            Self::Voxels { surface, .. } => surface
+                .vertices()
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| v.alive)
+                .map(|(i, _)| i as u32)
+                .collect(),
+            Self::Tetrahedra { boundary, .. } => boundary.clone(),
+        }
+    }
+
+    /// Whether vertex `v` exists.
+    pub fn is_live(&self, v: u32) -> bool {
+        match self {
+            Self::Voxels { surface, .. } => {
+                surface.vertices().get(v as usize).is_some_and(|x| x.alive)
+            }
+            Self::Tetrahedra { boundary, .. } => boundary.binary_search(&v).is_ok(),
+        }
+    }
+
+    /// The deformed position of every vertex slot for node positions `x` (model order); dead
+    /// slots hold anything.
+    pub fn deform(&self, x: &[Vec3], model: Option<&HexModel>, out: &mut Vec<Vec3>) {
+        match self {
+            Self::Voxels { mapping, model_of_grid, .. } => {
+                let model = model.expect("a voxel surface belongs to a hexahedral model");
+                // Scattered to grid-node order, where the embeddings point.
+                let mut scattered = vec![[0.0; 3]; model_of_grid.len()];
+                for (p, &g) in x.iter().zip(&model.grid_node) {
+                    scattered[g as usize] = *p;
+                }
+                mapping.deformed(&scattered, out);
+            }
+            Self::Tetrahedra { .. } => {
+                out.clear();
+                out.extend_from_slice(x);
+            }
+        }
+    }
+
+    /// Vertex `v`'s embedding in model node indices.
+    pub fn embedding(&self, v: u32) -> EmbeddedPoint {
+        match self {
+            Self::Voxels { mapping, model_of_grid, .. } => {
+                let e = mapping.embedding(v);
+                let mut point = EmbeddedPoint { nodes: [0; 8], weights: [0.0; 8] };
+                for k in 0..8 {
+                    if e.weights[k] != 0.0 {
+                        point.nodes[k] = model_of_grid[e.nodes[k] as usize];
+                        point.weights[k] = e.weights[k];
+                    }
+                }
+                point
+            }
+            Self::Tetrahedra { .. } => EmbeddedPoint::node(v),
+        }
+    }
+
+    /// The voxel that owns vertex `v` (`None` on a tetrahedral surface).
+    pub fn owner_voxel(&self, v: u32) -> Option<u32> {
+        match self {
+            Self::Voxels { surface, .. } => surface.vertices().get(v as usize).map(|x| x.voxel),
+            Self::Tetrahedra { .. } => None,
+        }
+    }
+
+    /// Brings the voxel surface up to date after a grid edit that touched `voxels` (removed
+    /// voxels, and both ends of severed links) and changed the grid by `changes`; `model` is the
+    /// model of the edited grid.
+    pub fn after_grid_edit(
+        &mut self,
+        grid: &BranchedGrid,
+        model: &HexModel,
+        voxels: &[u32],
+        changes: &GridChanges,
+    ) -> SurfaceChanges {
+        match self {
+            Self::Voxels { surface, mapping, model_of_grid: map, .. } => {
+                let surface_changes = surface.remesh(grid.fine(), voxels);
+                let changed = incise_surface::changed_elements(changes);
+                mapping.update(surface, grid, &changed, &surface_changes, &|g| g);
+                *map = model_of_grid(grid, model);
+                surface_changes
+            }
+            Self::Tetrahedra { .. } => SurfaceChanges::default(),
+        }
+    }
+
+    /// Brings the tetrahedral surface up to date after tetrahedra were removed.
+    pub fn after_tet_removal(&mut self, topology: &TetTopology) -> SurfaceChanges {
+        match self {
+            Self::Tetrahedra { surface, boundary } => {
+                let changes = surface.refresh(topology);
+                *boundary = boundary_vertices(surface);
+                changes
+            }
+            Self::Voxels { .. } => SurfaceChanges::default(),
+        }
+    }
+}
+
+/// Model index of each grid node id.
+fn model_of_grid(grid: &BranchedGrid, model: &HexModel) -> Vec<u32> {
+    let mut map = vec![u32::MAX; grid.top().node_capacity()];
+    for (i, &g) in model.grid_node.iter().enumerate() {
+        map[g as usize] = i as u32;
+    }
+    map
+}
+
+/// The vertices of a tetrahedral surface's live triangles, sorted.
+fn boundary_vertices(surface: &TetSurface) -> Vec<u32> {
+    let mut v: Vec<u32> = surface.live_triangles().flat_map(|(_, t)| t.v).collect();
+    v.sort_unstable();
+    v.dedup();
+    v
+}

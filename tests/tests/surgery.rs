@@ -1,0 +1,159 @@
+//! The surgical frame on real scenes: tools pressing, cutting and grasping through
+//! `Simulation::step`, with the invariants each stage must keep.
+
+use incise_math::Vec3;
+use incise_sim::{SceneConfig, Simulation, StepInputs, ToolInput};
+use incise_tool::{Pose, ToolPose};
+
+/// A 4 cm cube of soft tissue (16³ voxels of 2.5 mm, level 2) on a fixed base, with one tool
+/// given by `tool` (TOML of a `[[tools]]` entry).
+fn block(tool: &str, dt: f64) -> Simulation {
+    let text = format!(
+        "name = \"block\"
+level = 2
+[volume]
+procedural = \"block\"
+size_m = [0.04, 0.04, 0.04]
+voxels = [16, 16, 16]
+[[materials]]
+label = 1
+youngs_modulus = 3000.0
+poisson_ratio = 0.45
+density = 1000.0
+[model]
+kind = \"corotational\"
+[integrator]
+kind = \"implicit-euler\"
+dt = {dt}
+rayleigh_alpha = 2.0
+rayleigh_beta = 0.01
+[[fixed]]
+plane = \"z\"
+value = 0.0
+{tool}"
+    );
+    let config = SceneConfig::from_toml(&text, "block.toml").unwrap();
+    let volume = config.procedural_volume().unwrap();
+    Simulation::new(&config, &volume, "block.toml").unwrap()
+}
+
+fn posed(tool: usize, position: Vec3) -> StepInputs {
+    let pose = ToolPose { pose: Pose::at(position), gripper: 0.0 };
+    StepInputs { tools: vec![ToolInput { tool, pose }], ..StepInputs::default() }
+}
+
+const PROBE: &str = "[[tools]]
+name = \"probe\"
+stiffness = 200.0
+damping = 0.0
+outer = { shape = \"sphere\", radius = 0.004 }
+";
+
+#[test]
+fn a_pressed_probe_is_pushed_back_and_dents_the_surface() {
+    let mut sim = block(PROBE, 1e-3);
+    let surface = sim.surface().expect("a scene with tools has a surface");
+    assert!(surface.triangle_count() > 1000);
+    // Lower the probe from 1 cm above the top (z = 4 cm) to 2 mm into it, then hold.
+    let mut last = None;
+    for i in 0..400 {
+        let z = (0.05 - 0.012 * f64::from(i.min(200)) / 200.0).max(0.038);
+        last = Some(sim.step(&posed(0, [0.02, 0.02, z])).unwrap());
+    }
+    let frame = last.unwrap();
+    let tool = &frame.surgical.tools[0];
+    println!("force {:?} N, {} points", tool.force(), tool.contact_points);
+    assert!(tool.contact_points > 0);
+    assert!(tool.force()[2] > 0.0, "the tissue pushes the probe up");
+}
+
+use incise_sim::config::{Cutting, ShapeSpec, ToolSpec};
+use incise_tool::{Primitive, Shape};
+
+/// The 13,648-voxel liver with `tools`.
+fn liver(tools: Vec<ToolSpec>) -> Simulation {
+    let path = incise_tests::scene("liver_13k.toml");
+    let mut scene = incise_scene::read_scene(&path).unwrap();
+    scene.config.tools = tools;
+    Simulation::new(&scene.config, &scene.geometry, "liver_13k.toml").unwrap()
+}
+
+fn cutter(name: &str, outer: Primitive, inner_offset_z: f64) -> ToolSpec {
+    let Primitive::Cuboid { half_extents } = outer else { unreachable!() };
+    ToolSpec {
+        name: name.into(),
+        outer: ShapeSpec::Shape(Shape::new(outer, [0.0, 0.0, half_extents[2]]).unwrap()),
+        inner: Some(ShapeSpec::Shape(
+            Shape::new(
+                Primitive::Blade { length: 0.02, height: 0.01, thickness: 0.007 },
+                [0.0, 0.0, inner_offset_z],
+            )
+            .unwrap(),
+        )),
+        stiffness: 300.0,
+        damping: 0.0,
+        cutting: Cutting::Remove,
+        jaws: None,
+        path: None,
+    }
+}
+
+/// Pushes `tool` up into the liver's underside below its centre, 0.05 mm a step from 1 cm below
+/// the surface, until it cuts or the tissue pushes back with `limit` N. Returns the tool's
+/// travel past the undeformed surface (m) and the force (N) when the first voxels were removed,
+/// or `None` (and the travel and force reached) if it never cut.
+fn press(tool: ToolSpec, limit: f64) -> (bool, f64, f64, usize) {
+    let mut sim = liver(vec![tool]);
+    let positions = sim.surface_positions().unwrap();
+    let surface = sim.surface().unwrap();
+    let (cx, cy) = (0.118, 0.099);
+    let bottom = surface
+        .live_vertices()
+        .into_iter()
+        .map(|v| positions[v as usize])
+        .filter(|p| (p[0] - cx).abs() < 0.01 && (p[1] - cy).abs() < 0.01)
+        .map(|p| p[2])
+        .fold(f64::INFINITY, f64::min);
+    // Tip up: the tool's +z (its shaft) points down.
+    let up = [0.0, 1.0, 0.0, 0.0];
+    let mut steps = 0;
+    loop {
+        let travel = -0.01 + 5e-5 * f64::from(steps);
+        let pose =
+            ToolPose { pose: Pose::new([cx, cy, bottom + travel], up).unwrap(), gripper: 0.0 };
+        let frame = sim
+            .step(&StepInputs { tools: vec![ToolInput { tool: 0, pose }], ..StepInputs::default() })
+            .unwrap();
+        steps += 1;
+        let force = frame.surgical.tools[0].force()[2].abs();
+        let removed = frame.counters.voxels_removed;
+        if removed > 0 || force > limit || steps > 2000 {
+            return (removed > 0, travel, force, frame.surgical.tools[0].contact_points);
+        }
+    }
+}
+
+#[test]
+fn under_the_same_force_a_broad_tool_pushes_and_a_sharp_one_cuts() {
+    // Paper 1 Fig. 11: the same blade sits 2 mm inside two outer shapes of the same length
+    // (24 mm), one 9 mm wide, one 24 mm wide. Pushed into the liver's underside until the tissue
+    // pushes back with 3 N, the narrow one sinks in far enough for its blade to reach voxel
+    // centres; the broad one spreads the same force over more surface and does not.
+    let sharp = cutter("sharp", Primitive::Cuboid { half_extents: [0.012, 0.0045, 0.01] }, 0.002);
+    let broad = cutter("broad", Primitive::Cuboid { half_extents: [0.012, 0.012, 0.01] }, 0.002);
+    let limit = 3.0;
+    let mut results = Vec::new();
+    for tool in [sharp, broad] {
+        let name = tool.name.clone();
+        let (cut, travel, force, points) = press(tool, limit);
+        println!(
+            "{name}: {} at {:.2} mm past the surface, tool force {force:.3} N, {points} points in contact",
+            if cut { "cutting starts" } else { "no cut up to the force limit" },
+            travel * 1e3
+        );
+        results.push((cut, force));
+    }
+    let (sharp, broad) = (results[0], results[1]);
+    assert!(sharp.0 && sharp.1 < limit, "the sharp tool cuts below {limit} N");
+    assert!(!broad.0 && broad.1 >= limit, "the broad tool reaches {limit} N without cutting");
+}

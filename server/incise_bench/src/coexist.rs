@@ -8,6 +8,7 @@
 //! p50, p99, max) and the physics' steps per second. A first row runs the probe alone, the floor
 //! this machine's timer gives.
 
+use crate::timing::quantile;
 use incise_fem::{Executor, Idle};
 use incise_sim::{Simulation, StepInputs};
 use serde::Serialize;
@@ -79,14 +80,6 @@ fn probe(period: Duration, stop: &AtomicBool) -> Vec<f64> {
         k = k.max(((woke - start).as_nanos() / period.as_nanos()) as u32) + 1;
     }
     jitter
-}
-
-/// The `q`-quantile of sorted `values` (0 when empty).
-fn quantile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return 0.0;
-    }
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
 /// Runs the probe for `seconds` beside `physics` (stepping until the probe stops), and returns

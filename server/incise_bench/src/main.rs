@@ -2,6 +2,7 @@
 //! with `--json`, ends with one line holding one JSON object for scripts.
 
 mod coexist;
+mod frame;
 mod grid_report;
 mod peers;
 mod plot;
@@ -38,6 +39,10 @@ enum Command {
     /// spinning and sleeping idle workers: the probe's period jitter (p50, p99, max) and the
     /// physics' steps per second.
     Coexist(coexist::CoexistArgs),
+    /// The full surgical frame on an organ: a scripted scalpel approaches, presses, cuts a stroke
+    /// and retracts, and a second blade separates a piece; per-stage times (median, p99), the
+    /// full-frame rate and the cut stroke's grid, condensation and re-mesh time.
+    Frame(frame::FrameArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -47,5 +52,6 @@ fn main() -> anyhow::Result<()> {
         Command::SpeedError(args) => speed_error::run(&args),
         Command::TensorMass(args) => tensor_mass::run(&args),
         Command::Coexist(args) => coexist::run(&args),
+        Command::Frame(args) => frame::run(&args),
     }
 }

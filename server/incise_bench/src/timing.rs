@@ -38,3 +38,12 @@ pub fn measure<S, T>(
     };
     (timing, last.expect("at least one repeat"))
 }
+
+/// The `q`-quantile (0 ≤ q ≤ 1) of ascending `sorted` values, the nearest sample; 0 when empty.
+#[must_use]
+pub fn quantile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}

@@ -64,8 +64,11 @@ pub struct StageCounters {
     pub cut_ns: u64,
     /// Updating the grid, the model and the solver state for a cut (or removing tetrahedra).
     pub grid_ns: u64,
-    /// Deforming the surface and re-meshing and re-embedding it after a cut.
+    /// Deforming the surface (its vertices' positions and velocities from the nodes').
     pub surface_ns: u64,
+    /// Re-meshing and re-embedding the surface after a cut (or refreshing a tetrahedral
+    /// boundary).
+    pub remesh_ns: u64,
     /// Springs the tools put on the surface (contact and grasp).
     pub contact_points: usize,
     /// Voxels a cut removed this step.

@@ -162,6 +162,10 @@ struct Sweep<'a> {
     from: &'a Pose,
     dt: f64,
     samples: usize,
+    /// The shape's bounding-ball centre (tool frame) and radius.
+    ball: (Vec3, f64),
+    /// How far that centre may stray from the straight line between its two positions.
+    slack: f64,
 }
 
 /// Most sub-poses a sweep is tested at: a 5 cm jump of a 1 mm blade needs 100.
@@ -178,7 +182,27 @@ impl<'a> Sweep<'a> {
             travel = travel.max((0..3).map(|k| (b[k] - a[k]).powi(2)).sum::<f64>().sqrt());
         }
         let samples = (travel / (0.5 * shape.thinnest())).ceil() as usize;
-        Self { from, dt, samples: samples.clamp(1, MAX_SWEEP_SAMPLES) }
+        let centre: Vec3 = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+        let radius = 0.5 * (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+        // Between the two poses the centre turns with the rotation: its path leaves the chord by
+        // at most its distance from the origin times the angle turned.
+        let (a, b) = (from.rotation(), to.rotation());
+        let cos_half = (0..4).map(|k| a[k] * b[k]).sum::<f64>().abs().min(1.0);
+        let angle = 2.0 * cos_half.acos();
+        let slack = dot(&centre, &centre).sqrt() * angle;
+        Self { from, dt, samples: samples.clamp(1, MAX_SWEEP_SAMPLES), ball: (centre, radius), slack }
+    }
+
+    /// Whether `p` is farther from the chord between the shape's two centres than the shape
+    /// and the path's slack reach: then the tool cannot have passed over it.
+    fn out_of_reach(&self, to: &Pose, p: Vec3) -> bool {
+        let (a, b) = (self.from.grid_from_tool(self.ball.0), to.grid_from_tool(self.ball.0));
+        let ab: Vec3 = std::array::from_fn(|k| b[k] - a[k]);
+        let ap: Vec3 = std::array::from_fn(|k| p[k] - a[k]);
+        let len2 = dot(&ab, &ab);
+        let t = if len2 > 0.0 { (dot(&ap, &ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        let d: Vec3 = std::array::from_fn(|k| ap[k] - t * ab[k]);
+        dot(&d, &d).sqrt() > self.ball.1 + self.slack
     }
 
     /// The velocity (m/s) of the tool's material point at grid point `p` now.
@@ -194,7 +218,10 @@ impl<'a> Sweep<'a> {
     /// outside then and inside at some sub-pose), the direction to push it (the motion of the
     /// tool there) and the distance to the shape's front surface along it.
     fn passed_over(&self, shape: &Shape, to: &Pose, p: Vec3) -> Option<(Vec3, f64)> {
-        if self.samples < 2 || shape.distance(self.from.tool_from_grid(p)).0 < 0.0 {
+        if self.samples < 2
+            || self.out_of_reach(to, p)
+            || shape.distance(self.from.tool_from_grid(p)).0 < 0.0
+        {
             return None;
         }
         let crossed = (1..self.samples).any(|i| {

@@ -74,17 +74,20 @@ impl DeformedGrid<'_> {
     }
 }
 
-/// The surface vertices within `reach` of a shape (by `distance`), as their owner voxels.
+/// The surface vertices within `reach` of a shape (by `distance`) and inside the box
+/// `(lo, hi)` grown by `reach`, as their owner voxels.
 fn seeds(
     surface: &OrganSurface,
     positions: &[Vec3],
     reach: f64,
+    (lo, hi): (Vec3, Vec3),
     distance: impl Fn(Vec3) -> f64,
 ) -> Vec<u32> {
+    let near = |p: &Vec3| (0..3).all(|k| p[k] >= lo[k] - reach && p[k] <= hi[k] + reach);
     let mut seeds: Vec<u32> = surface
         .live_vertices()
         .into_iter()
-        .filter(|&v| distance(positions[v as usize]) < reach)
+        .filter(|&v| near(&positions[v as usize]) && distance(positions[v as usize]) < reach)
         .filter_map(|v| surface.owner_voxel(v))
         .collect();
     seeds.sort_unstable();
@@ -102,7 +105,7 @@ pub fn voxels_inside(
     positions: &[Vec3],
 ) -> Vec<u32> {
     let inside = |p: Vec3| inner.distance(pose.tool_from_grid(p)).0;
-    let seeds = seeds(surface, positions, grid.voxel(), inside);
+    let seeds = seeds(surface, positions, grid.voxel(), grid_bounds(inner, pose), inside);
     if seeds.is_empty() {
         return seeds;
     }
@@ -119,7 +122,7 @@ pub fn links_crossed(
     positions: &[Vec3],
 ) -> Vec<(u32, u32)> {
     let reach = 1.5 * grid.voxel();
-    let seeds = seeds(surface, positions, reach, |p| blade.distance(p));
+    let seeds = seeds(surface, positions, reach, blade.bounds(), |p| blade.distance(p));
     if seeds.is_empty() {
         return Vec::new();
     }
@@ -149,6 +152,22 @@ pub fn links_crossed(
     links.sort_unstable();
     links.dedup();
     links
+}
+
+/// The grid-frame bounding box of `shape` at `pose`.
+fn grid_bounds(shape: &Shape, pose: &Pose) -> (Vec3, Vec3) {
+    let (lo, hi) = shape.bounds();
+    let mut a = [f64::INFINITY; 3];
+    let mut b = [f64::NEG_INFINITY; 3];
+    for corner in 0..8 {
+        let q = std::array::from_fn(|k| if corner >> k & 1 == 0 { lo[k] } else { hi[k] });
+        let p = pose.grid_from_tool(q);
+        for k in 0..3 {
+            a[k] = a[k].min(p[k]);
+            b[k] = b[k].max(p[k]);
+        }
+    }
+    (a, b)
 }
 
 /// The live tetrahedra whose deformed centroids `inner` at `pose` contains. Sorted.

@@ -404,7 +404,7 @@ impl Simulation {
                 None => SurfaceChanges::default(),
             },
         };
-        counters.surface_ns += elapsed(t);
+        counters.remesh_ns += elapsed(t);
         frame.cuts = events;
         Ok(true)
     }

@@ -1,0 +1,421 @@
+//! `incise-bench frame`: the full surgical frame on an organ, stage by stage (Jeřábková 2010
+//! §4.1 measured where its frame time went: solve 60 %, collision 15 %, grid update 10 %,
+//! voxel search 2 %, re-mesh 2 %).
+//!
+//! A scripted scalpel comes up from under the organ's centre: it approaches, presses without
+//! cutting, cuts a stroke (pushed in until its blade reaches the tissue, then drawn across),
+//! retracts, and a second, long blade cuts a slab through the whole organ near one end, which
+//! separates that end. Every frame is timed by stage (contact, cut search, grid and model
+//! update, surface deformation, re-mesh, mechanics); the report prints each stage's median and
+//! p99, the full-frame rate, and what the stroke cost in grid update, condensation and re-mesh.
+//! Figures are measured, never asserted.
+
+use crate::coexist::scene_path;
+use crate::timing::quantile;
+use anyhow::{Context, bail};
+use incise_fem::Executor;
+use incise_math::Vec3;
+use incise_sim::config::{Cutting, Model, ShapeSpec, ToolSpec, VolumeSpec};
+use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
+use incise_tool::{Pose, Primitive, Shape, ToolPose};
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// Arguments of `incise-bench frame`.
+#[derive(clap::Args, Debug)]
+pub struct FrameArgs {
+    /// `liver` (the liver CT of `liver_13k.toml`, with `--stride` and `--levels`), a scene name
+    /// in `--scene-dir`, or a scene file's path (hexahedral or tensor-mass).
+    #[arg(long, default_value = "liver")]
+    scene: String,
+    /// Folder of the named scenes.
+    #[arg(long, value_name = "DIR", default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/scenes"))]
+    scene_dir: PathBuf,
+    /// Stride of a label-volume scene's image, `x,y,z` (8,8,4: 13,648 liver voxels; 4,4,2:
+    /// 109,201).
+    #[arg(long, value_delimiter = ',', value_name = "X,Y,Z")]
+    stride: Option<Vec<usize>>,
+    /// The grid level the hexahedra run on.
+    #[arg(long)]
+    levels: Option<u32>,
+    /// Threads of the physics (1: what runs beside the haptic thread on 2 cores).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// End with one line holding one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// A stage's times over the frames (ms).
+#[derive(Clone, Debug, Serialize)]
+struct Stage {
+    stage: &'static str,
+    median_ms: f64,
+    p99_ms: f64,
+    total_ms: f64,
+}
+
+/// The report.
+#[derive(Clone, Debug, Serialize)]
+struct Report {
+    scene: String,
+    model: &'static str,
+    physics_threads: usize,
+    voxels: Option<usize>,
+    elements: usize,
+    frames: usize,
+    frame_hz_median: f64,
+    frame_ms_median: f64,
+    frame_ms_p99: f64,
+    stages: Vec<Stage>,
+    /// Grid update + condensation + re-mesh over the cut stroke (ms).
+    cut_stroke_ms: f64,
+    /// The stroke's cut search (ms), not in `cut_stroke_ms`.
+    cut_stroke_search_ms: f64,
+    cut_stroke_voxels: usize,
+    cut_stroke_frames: usize,
+    voxels_removed: usize,
+    tets_removed: usize,
+    triangles: usize,
+    tool_force_max_n: f64,
+    /// Cutting had not started when the press phase ended.
+    pressed_without_cutting: bool,
+    /// Frames whose state was not finite (0 expected).
+    non_finite_frames: usize,
+    gpu: &'static str,
+    gpu_cpu_max_diff: Option<f64>,
+}
+
+/// The script's phases.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Approach,
+    Press,
+    Stroke,
+    Retract,
+    Separate,
+}
+
+/// One frame's pose for each of the two tools (`None`: not in play).
+struct Script {
+    frames: Vec<(Phase, Option<Vec3>, Option<Vec3>)>,
+}
+
+/// Tip up: the tools come from below, their shafts (+z) pointing down.
+const UP: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
+
+/// A sharp scalpel: its blade sits just inside a narrow outer shape, so it cuts once pressed
+/// a little into the tissue.
+fn scalpel(unit: f64) -> ToolSpec {
+    let outer = Primitive::Cuboid { half_extents: [2.5 * unit, 0.8 * unit, 3.0 * unit] };
+    ToolSpec {
+        name: "scalpel".into(),
+        outer: ShapeSpec::Shape(Shape::new(outer, [0.0, 0.0, 3.0 * unit]).expect("positive")),
+        inner: Some(ShapeSpec::Shape(
+            Shape::new(
+                Primitive::Blade { length: 5.0 * unit, height: 3.0 * unit, thickness: 1.4 * unit },
+                [0.0, 0.0, 0.15 * unit],
+            )
+            .expect("positive"),
+        )),
+        stiffness: 300.0,
+        damping: 0.0,
+        cutting: Cutting::Remove,
+        jaws: None,
+        path: None,
+    }
+}
+
+/// A blade as long as the organ is wide, cutting where it touches (inner = outer).
+fn transector(unit: f64, width: f64) -> ToolSpec {
+    let blade = Primitive::Blade { length: width, height: 3.0 * unit, thickness: 1.4 * unit };
+    let shape = ShapeSpec::Shape(Shape::new(blade, [0.0; 3]).expect("positive"));
+    ToolSpec {
+        name: "transector".into(),
+        outer: shape.clone(),
+        inner: Some(shape),
+        stiffness: 300.0,
+        damping: 0.0,
+        cutting: Cutting::Remove,
+        jaws: None,
+        path: None,
+    }
+}
+
+/// The organ's rest surface: bounds, the bottom under its centre, and a length unit (the mean
+/// surface edge, about a voxel).
+struct Organ {
+    lo: Vec3,
+    hi: Vec3,
+    bottom: f64,
+    unit: f64,
+}
+
+fn organ(sim: &Simulation) -> anyhow::Result<Organ> {
+    let positions = sim.surface_positions().context("the scene has no surface")?;
+    let surface = sim.surface().context("the scene has no surface")?;
+    let live = surface.live_vertices();
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &v in &live {
+        let p = positions[v as usize];
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let triangles = surface.triangle_list();
+    let edge = |a: u32, b: u32| {
+        let (p, q) = (positions[a as usize], positions[b as usize]);
+        (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt()
+    };
+    let total: f64 = triangles.iter().map(|t| edge(t[0], t[1])).sum();
+    let unit = 1.2 * total / triangles.len().max(1) as f64;
+    let (cx, cy) = (0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]));
+    let bottom = live
+        .iter()
+        .map(|&v| positions[v as usize])
+        .filter(|p| (p[0] - cx).abs() < 2.0 * unit && (p[1] - cy).abs() < 2.0 * unit)
+        .map(|p| p[2])
+        .fold(f64::INFINITY, f64::min);
+    if !bottom.is_finite() {
+        bail!("no surface under the organ's centre");
+    }
+    Ok(Organ { lo, hi, bottom, unit })
+}
+
+fn script(o: &Organ) -> Script {
+    let (cx, cy) = (0.5 * (o.lo[0] + o.hi[0]), 0.5 * (o.lo[1] + o.hi[1]));
+    let u = o.unit;
+    let mut frames = Vec::new();
+    let ramp = |from: f64, to: f64, n: usize| {
+        (0..n).map(move |i| from + (to - from) * (i + 1) as f64 / n as f64)
+    };
+    for z in ramp(-3.0 * u, -0.2 * u, 100) {
+        frames.push((Phase::Approach, Some([cx, cy, o.bottom + z]), None));
+    }
+    for z in ramp(-0.2 * u, 0.3 * u, 100) {
+        frames.push((Phase::Press, Some([cx, cy, o.bottom + z]), None));
+    }
+    // In until the blade bites, then drawn across along y, rising a little as it goes.
+    for z in ramp(0.3 * u, 5.0 * u, 150) {
+        frames.push((Phase::Stroke, Some([cx, cy, o.bottom + z]), None));
+    }
+    for (i, y) in ramp(cy, cy + 12.0 * u, 300).enumerate() {
+        let z = o.bottom + 5.0 * u + 1.5 * u * i as f64 / 300.0;
+        frames.push((Phase::Stroke, Some([cx, y, z]), None));
+    }
+    let end = [cx, cy + 12.0 * u, o.bottom + 6.5 * u];
+    for z in ramp(end[2], o.bottom - 4.0 * u, 100) {
+        frames.push((Phase::Retract, Some([end[0], end[1], z]), None));
+    }
+    // The transector comes up through the whole organ near its +x end.
+    let x = o.hi[0] - 0.2 * (o.hi[0] - o.lo[0]);
+    for z in ramp(o.lo[2] - 2.0 * u, o.hi[2] + 2.0 * u, 300) {
+        frames.push((Phase::Separate, None, Some([x, cy, z])));
+    }
+    Script { frames }
+}
+
+/// Runs the report.
+pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
+    let named = if args.scene == "liver" { "liver_13k" } else { args.scene.as_str() };
+    let path = scene_path(named, &args.scene_dir);
+    let mut scene = incise_scene::read_scene(&path)
+        .map_err(|e| anyhow::anyhow!("--scene {}: {e}", args.scene))?;
+    for note in &scene.notes {
+        eprintln!("note: {note}");
+    }
+    if let Some(stride) = &args.stride {
+        let &[x, y, z] = stride.as_slice() else {
+            bail!("--stride takes three counts, x,y,z (e.g. 8,8,4)");
+        };
+        anyhow::ensure!(x > 0 && y > 0 && z > 0, "--stride: counts must be positive");
+        match scene.config.volume_mut() {
+            Some(VolumeSpec::File { stride: s, .. }) => *s = [x, y, z],
+            _ => bail!("--stride: the scene is not built on a volume file"),
+        }
+    }
+    if let Some(level) = args.levels {
+        match &mut scene.config.model {
+            Model::Hexahedra(hex) => hex.level = incise_sim::config::Level::Fixed(level),
+            Model::TensorMass(_) => bail!("--levels: a tensor-mass scene has no grid levels"),
+        }
+    }
+    let exec = Executor::new(args.threads.max(1), incise_fem::Idle::Sleep);
+    // A first build finds the organ's size, which sizes the tools.
+    let mut probe = Simulation::with_executor(&scene.config, &scene.geometry, &args.scene, &exec)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    probe.enable_surface();
+    let o = organ(&probe)?;
+    drop(probe);
+    scene.config.tools = vec![scalpel(o.unit), transector(o.unit, 1.2 * (o.hi[1] - o.lo[1]))];
+    let mut sim = Simulation::with_executor(&scene.config, &scene.geometry, &args.scene, &exec)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let voxels = sim.grid().map(|g| g.fine().voxel_count());
+    let elements = match (sim.model(), sim.tet()) {
+        (Some(m), _) => m.elements.len(),
+        (None, Some(t)) => t.topology.live_count(),
+        _ => 0,
+    };
+    let model = if sim.grid().is_some() { "corotational hexahedra" } else { "tensor-mass" };
+    eprintln!(
+        "frame: {} ({model}, {} voxels, {elements} elements), unit {:.2} mm, {} physics thread(s)",
+        args.scene,
+        voxels.map_or("no".into(), |v| v.to_string()),
+        o.unit * 1e3,
+        args.threads.max(1)
+    );
+    // Let the organ settle under gravity first, so the script meets it at rest.
+    for _ in 0..200 {
+        sim.step(&StepInputs::default()).map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    let script = script(&o);
+    let mut frames: Vec<(Phase, Frame)> = Vec::with_capacity(script.frames.len());
+    for (phase, scalpel, transector) in &script.frames {
+        let mut tools = Vec::new();
+        if let Some(p) = scalpel {
+            tools.push(ToolInput {
+                tool: 0,
+                pose: ToolPose { pose: Pose::new(*p, UP)?, gripper: 0.0 },
+            });
+        }
+        if let Some(p) = transector {
+            tools.push(ToolInput {
+                tool: 1,
+                pose: ToolPose { pose: Pose::new(*p, UP)?, gripper: 0.0 },
+            });
+        }
+        if scalpel.is_none()
+            && transector.is_some()
+            && frames.last().is_some_and(|f| f.0 == Phase::Retract)
+        {
+            // Park the scalpel out of the way.
+            let away = [o.lo[0] - 10.0 * o.unit, o.lo[1], o.lo[2] - 10.0 * o.unit];
+            tools
+                .push(ToolInput { tool: 0, pose: ToolPose { pose: Pose::at(away), gripper: 0.0 } });
+        }
+        let frame = sim
+            .step(&StepInputs { tools, ..StepInputs::default() })
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        if std::env::var_os("INCISE_FRAME_DEBUG").is_some() && frame.counters.step_ns > 1_000_000 {
+            eprintln!("{phase:?} {:?} {:?}", frame.counters, frame.surgical.cuts);
+        }
+        frames.push((*phase, frame));
+    }
+    let report = summarise(args, &sim, model, voxels, elements, &frames);
+    print_report(&report);
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    }
+    Ok(())
+}
+
+fn summarise(
+    args: &FrameArgs,
+    sim: &Simulation,
+    model: &'static str,
+    voxels: Option<usize>,
+    elements: usize,
+    frames: &[(Phase, Frame)],
+) -> Report {
+    let ms = |ns: u64| ns as f64 * 1e-6;
+    let stage = |name: &'static str, f: &dyn Fn(&Frame) -> u64| {
+        let mut t: Vec<f64> = frames.iter().map(|(_, fr)| ms(f(fr))).collect();
+        let total = t.iter().sum();
+        t.sort_by(f64::total_cmp);
+        Stage {
+            stage: name,
+            median_ms: quantile(&t, 0.5),
+            p99_ms: quantile(&t, 0.99),
+            total_ms: total,
+        }
+    };
+    let stages = vec![
+        stage("contact", &|f| f.counters.contact_ns),
+        stage("cut search", &|f| f.counters.cut_ns),
+        stage("grid + model update", &|f| f.counters.grid_ns),
+        stage("surface deform", &|f| f.counters.surface_ns),
+        stage("re-mesh + re-embed", &|f| f.counters.remesh_ns),
+        stage("mechanics", &|f| f.counters.mechanics_ns),
+        stage("frame", &|f| f.counters.step_ns),
+    ];
+    let frame = stages.last().expect("the frame stage").clone();
+    let stroke: Vec<&Frame> =
+        frames.iter().filter(|(p, _)| *p == Phase::Stroke).map(|(_, f)| f).collect();
+    let cut_stroke_ms = stroke.iter().map(|f| ms(f.counters.grid_ns + f.counters.remesh_ns)).sum();
+    let cut_stroke_search_ms = stroke.iter().map(|f| ms(f.counters.cut_ns)).sum();
+    let cut_stroke_voxels =
+        stroke.iter().map(|f| f.counters.voxels_removed + f.counters.tets_removed).sum();
+    let cut_stroke_frames = stroke.iter().filter(|f| !f.surgical.cuts.is_empty()).count();
+    let pressed_without_cutting = frames
+        .iter()
+        .filter(|(p, _)| matches!(p, Phase::Approach | Phase::Press))
+        .all(|(_, f)| f.surgical.cuts.is_empty());
+    let tool_force_max_n = frames
+        .iter()
+        .flat_map(|(_, f)| {
+            f.surgical.tools.iter().map(|t| t.force().iter().map(|c| c * c).sum::<f64>().sqrt())
+        })
+        .fold(0.0, f64::max);
+    Report {
+        scene: args.scene.clone(),
+        model,
+        physics_threads: args.threads.max(1),
+        voxels,
+        elements,
+        frames: frames.len(),
+        frame_hz_median: 1e3 / frame.median_ms,
+        frame_ms_median: frame.median_ms,
+        frame_ms_p99: frame.p99_ms,
+        stages,
+        cut_stroke_ms,
+        cut_stroke_search_ms,
+        cut_stroke_voxels,
+        cut_stroke_frames,
+        voxels_removed: frames.iter().map(|(_, f)| f.counters.voxels_removed).sum(),
+        tets_removed: frames.iter().map(|(_, f)| f.counters.tets_removed).sum(),
+        triangles: sim.surface().map_or(0, incise_sim::OrganSurface::triangle_count),
+        tool_force_max_n,
+        pressed_without_cutting,
+        non_finite_frames: frames
+            .iter()
+            .filter(|(_, f)| !f.positions.iter().flatten().all(|c| c.is_finite()))
+            .count(),
+        gpu: "none",
+        gpu_cpu_max_diff: None,
+    }
+}
+
+fn print_report(r: &Report) {
+    println!(
+        "\nfull frame on {} ({}, {} voxels, {} elements, {} physics thread(s)), {} frames",
+        r.scene,
+        r.model,
+        r.voxels.map_or("no".into(), |v| v.to_string()),
+        r.elements,
+        r.physics_threads,
+        r.frames
+    );
+    println!("{:<22} {:>10} {:>10} {:>11}", "stage", "median ms", "p99 ms", "total ms");
+    for s in &r.stages {
+        println!("{:<22} {:>10.4} {:>10.4} {:>11.2}", s.stage, s.median_ms, s.p99_ms, s.total_ms);
+    }
+    println!(
+        "full frame: {:.0} Hz at the median ({:.3} ms), p99 {:.3} ms",
+        r.frame_hz_median, r.frame_ms_median, r.frame_ms_p99
+    );
+    println!(
+        "cut stroke: {} voxels over {} frames; grid + condensation + re-mesh {:.3} ms (search {:.3} ms)",
+        r.cut_stroke_voxels, r.cut_stroke_frames, r.cut_stroke_ms, r.cut_stroke_search_ms
+    );
+    println!(
+        "removed {} voxels, {} tetrahedra; surface {} triangles; tool force up to {:.3} N; pressed without cutting: {}; non-finite frames: {}",
+        r.voxels_removed,
+        r.tets_removed,
+        r.triangles,
+        r.tool_force_max_n,
+        r.pressed_without_cutting,
+        r.non_finite_frames
+    );
+}

@@ -25,6 +25,9 @@ pub struct Embedding {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SurfaceMapping {
     embeddings: Vec<Embedding>,
+    /// The top-level grid node ids behind each embedding's `nodes`, so that the caller's indices
+    /// can be looked up again when its numbering moves.
+    grid_nodes: Vec<[u32; 8]>,
     live: Vec<bool>,
 }
 
@@ -58,11 +61,12 @@ impl SurfaceMapping {
         let vertices = surface.vertices();
         let mut m = Self {
             embeddings: vec![Embedding::default(); vertices.len()],
+            grid_nodes: vec![[0; 8]; vertices.len()],
             live: vertices.iter().map(|v| v.alive).collect(),
         };
         for (i, v) in vertices.iter().enumerate() {
             if v.alive {
-                m.embeddings[i] = embed_vertex(v, grid, node_index);
+                (m.embeddings[i], m.grid_nodes[i]) = embed_vertex(v, grid, node_index);
             }
         }
         m
@@ -79,13 +83,21 @@ impl SurfaceMapping {
                 Embedding { nodes: [i; 8], weights }
             })
             .collect();
-        Self { embeddings, live: vec![true; vertex_count] }
+        Self {
+            embeddings,
+            grid_nodes: (0..vertex_count as u32).map(|i| [i; 8]).collect(),
+            live: vec![true; vertex_count],
+        }
     }
 
     /// After a grid change: re-embeds only the vertices whose owner voxel is now in an element
     /// listed in `changed_elements` (added, changed and shrunk elements; see
     /// [`changed_elements`]), and the vertices added by the surface change; frees the slots of
     /// removed vertices. Returns how many were re-embedded.
+    ///
+    /// The other vertices keep their weights and grid nodes, but their node indices are looked up
+    /// again through `node_index`: a cut may renumber nodes it did not touch (a model that numbers
+    /// its live nodes compactly shifts every node after one that was added or removed).
     ///
     /// # Panics
     /// As [`SurfaceMapping::embed`].
@@ -99,10 +111,18 @@ impl SurfaceMapping {
     ) -> usize {
         let vertices = surface.vertices();
         self.embeddings.resize(vertices.len(), Embedding::default());
+        self.grid_nodes.resize(vertices.len(), [0; 8]);
         self.live.resize(vertices.len(), false);
         for &v in &surface_changes.vertices_removed {
             self.embeddings[v as usize] = Embedding::default();
             self.live[v as usize] = false;
+        }
+        for (e, (g, &live)) in
+            self.embeddings.iter_mut().zip(self.grid_nodes.iter().zip(&self.live))
+        {
+            if live {
+                e.nodes = g.map(node_index);
+            }
         }
         let mut todo: Vec<u32> = surface_changes.vertices_added.clone();
         for &e in changed_elements {
@@ -114,8 +134,9 @@ impl SurfaceMapping {
         todo.dedup();
         todo.retain(|&v| vertices[v as usize].alive);
         for &v in &todo {
-            self.embeddings[v as usize] = embed_vertex(&vertices[v as usize], grid, node_index);
-            self.live[v as usize] = true;
+            let i = v as usize;
+            (self.embeddings[i], self.grid_nodes[i]) = embed_vertex(&vertices[i], grid, node_index);
+            self.live[i] = true;
         }
         todo.len()
     }
@@ -170,12 +191,12 @@ impl SurfaceMapping {
     }
 }
 
-/// The embedding of one live vertex.
+/// The embedding of one live vertex, with the grid node ids behind it.
 fn embed_vertex(
     v: &SurfaceVertex,
     grid: &BranchedGrid,
     node_index: &dyn Fn(u32) -> u32,
-) -> Embedding {
+) -> (Embedding, [u32; 8]) {
     let id = grid
         .voxel_element(v.voxel)
         .unwrap_or_else(|| panic!("voxel {} owns a surface vertex but is empty", v.voxel));
@@ -184,8 +205,9 @@ fn embed_vertex(
     let cell = top.cell_coords(e.cell);
     let size = grid.element_size();
     let xi: Vec3 = std::array::from_fn(|a| v.rest[a] / size[a] - f64::from(cell[a]));
-    Embedding {
+    let embedding = Embedding {
         nodes: e.nodes.map(node_index),
         weights: std::array::from_fn(|n| hex8::shape(n, xi)),
-    }
+    };
+    (embedding, e.nodes)
 }

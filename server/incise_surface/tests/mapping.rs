@@ -10,16 +10,21 @@ use incise_grid::{BranchedGrid, GridEdit};
 use incise_math::Vec3;
 use incise_surface::{Surface, SurfaceMapping, SurfaceOptions, changed_elements};
 
-/// The caller's numbering of the grid's nodes: odd numbers only, so a mapping that ignored
-/// `node_index` would fail; like a simulation's, it does not move when nodes are added.
-fn numbering(_grid: &BranchedGrid) -> impl Fn(u32) -> u32 {
-    |n| 2 * n + 1
+/// The caller's numbering of the grid's nodes, as `HexModel` numbers them: the live nodes in id
+/// order, compactly. A cut that adds or removes a node shifts the index of every node after it,
+/// touched by the cut or not.
+fn numbering(grid: &BranchedGrid) -> impl Fn(u32) -> u32 + use<> {
+    let mut rank = vec![u32::MAX; grid.top().node_capacity()];
+    for (i, (id, _)) in grid.top().nodes().enumerate() {
+        rank[id as usize] = i as u32;
+    }
+    move |n| rank[n as usize]
 }
 
-/// Node positions at rest in the caller's numbering (unused indices at the origin).
+/// Node positions at rest in the caller's numbering.
 fn rest_nodes(grid: &BranchedGrid) -> Vec<Vec3> {
     let index = numbering(grid);
-    let mut x = vec![[0.0; 3]; 2 * grid.top().node_capacity() + 2];
+    let mut x = vec![[0.0; 3]; grid.top().node_count()];
     for (id, _) in grid.top().nodes() {
         x[index(id) as usize] = grid.node_rest_position(id).unwrap();
     }
@@ -115,8 +120,12 @@ fn a_cut_re_embeds_only_the_vertices_of_changed_elements() {
     let mut s = Surface::extract(grid.fine(), grid.spacing(), &o);
     let mut m = SurfaceMapping::embed(&s, &grid, &numbering(&grid));
     let d = grid.fine().dims();
+    let bottom: Vec<u32> = (0..d[0] * d[1] * 4).collect();
     let edits = [
-        // A small bite at the surface, then a slit severing the upper part nearly in two.
+        // The bottom layer of level-2 cells goes, and with it the lowest node ids: every other
+        // node's compact index shifts. Then a small bite at the surface, and a slit severing the
+        // upper part nearly in two.
+        GridEdit { remove_voxels: bottom, sever_links: vec![] },
         GridEdit {
             remove_voxels: cluster(d, voxel(d, 8, 8, 15), 25, &mut Rng::new(3)),
             sever_links: vec![],

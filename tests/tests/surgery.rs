@@ -109,8 +109,8 @@ fn press(tool: ToolSpec, limit: f64) -> (bool, f64, f64, usize) {
     let (cx, cy) = (0.118, 0.099);
     let bottom = surface
         .live_vertices()
-        .into_iter()
-        .map(|v| positions[v as usize])
+        .iter()
+        .map(|&v| positions[v as usize])
         .filter(|p| (p[0] - cx).abs() < 0.01 && (p[1] - cy).abs() < 0.01)
         .map(|p| p[2])
         .fold(f64::INFINITY, f64::min);

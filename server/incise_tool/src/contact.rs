@@ -190,7 +190,13 @@ impl<'a> Sweep<'a> {
         let cos_half = (0..4).map(|k| a[k] * b[k]).sum::<f64>().abs().min(1.0);
         let angle = 2.0 * cos_half.acos();
         let slack = dot(&centre, &centre).sqrt() * angle;
-        Self { from, dt, samples: samples.clamp(1, MAX_SWEEP_SAMPLES), ball: (centre, radius), slack }
+        Self {
+            from,
+            dt,
+            samples: samples.clamp(1, MAX_SWEEP_SAMPLES),
+            ball: (centre, radius),
+            slack,
+        }
     }
 
     /// Whether `p` is farther from the chord between the shape's two centres than the shape

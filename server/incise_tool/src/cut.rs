@@ -105,6 +105,26 @@ impl SweptBlade {
         })
     }
 
+    /// The grid-frame bounding box of the swept mid-plane.
+    #[must_use]
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for pose in &self.poses {
+            for corner in 0..4 {
+                let x = if corner & 1 == 0 { -self.half_length } else { self.half_length };
+                let z = if corner & 2 == 0 { 0.0 } else { self.height };
+                let q = [self.offset[0] + x, self.offset[1], self.offset[2] + z];
+                let p = pose.grid_from_tool(q);
+                for k in 0..3 {
+                    lo[k] = lo[k].min(p[k]);
+                    hi[k] = hi[k].max(p[k]);
+                }
+            }
+        }
+        (lo, hi)
+    }
+
     /// The smallest distance (m) from `p` to the mid-plane rectangle over the sub-poses: the
     /// flood of candidate links stays within reach of it.
     #[must_use]

@@ -5,6 +5,11 @@
 //!
 //! A voxel's deformed centre is its rest centre's trilinear interpolation in the element that
 //! owns it, the same embedding the surface vertices have.
+//!
+//! The flood is seeded where the shape meets the surface, and also inside the elements whose
+//! deformed boxes the shape's box overlaps: paper 1 finds the voxels from the surface of the
+//! *intersection volume*, which includes the tool's own surface inside the organ, so a blade
+//! already buried below the organ's surface (drawn along a cut it made) keeps cutting.
 
 use super::surface::OrganSurface;
 use incise_grid::BranchedGrid;
@@ -72,6 +77,38 @@ impl DeformedGrid<'_> {
     fn voxel(&self) -> f64 {
         self.grid.spacing().into_iter().fold(0.0, f64::max)
     }
+
+    /// The voxels of the elements whose deformed bounding boxes overlap `(lo, hi)` grown by
+    /// `reach`, whose deformed centres satisfy `keep`.
+    fn voxels_near(
+        &self,
+        (lo, hi): (Vec3, Vec3),
+        reach: f64,
+        keep: impl Fn(Vec3) -> bool,
+    ) -> Vec<u32> {
+        let mut out = Vec::new();
+        for (id, element) in self.grid.top().elements() {
+            let mut a = [f64::INFINITY; 3];
+            let mut b = [f64::NEG_INFINITY; 3];
+            for &n in &element.nodes {
+                let p = self.by_grid_node[n as usize];
+                for k in 0..3 {
+                    a[k] = a[k].min(p[k]);
+                    b[k] = b[k].max(p[k]);
+                }
+            }
+            if (0..3).any(|k| b[k] < lo[k] - reach || a[k] > hi[k] + reach) {
+                continue;
+            }
+            out.extend(
+                self.grid
+                    .element_voxels(id)
+                    .into_iter()
+                    .filter(|&v| self.centre(v).is_some_and(&keep)),
+            );
+        }
+        out
+    }
 }
 
 /// The surface vertices within `reach` of a shape (by `distance`) and inside the box
@@ -86,7 +123,8 @@ fn seeds(
     let near = |p: &Vec3| (0..3).all(|k| p[k] >= lo[k] - reach && p[k] <= hi[k] + reach);
     let mut seeds: Vec<u32> = surface
         .live_vertices()
-        .into_iter()
+        .iter()
+        .copied()
         .filter(|&v| near(&positions[v as usize]) && distance(positions[v as usize]) < reach)
         .filter_map(|v| surface.owner_voxel(v))
         .collect();
@@ -105,7 +143,9 @@ pub fn voxels_inside(
     positions: &[Vec3],
 ) -> Vec<u32> {
     let inside = |p: Vec3| inner.distance(pose.tool_from_grid(p)).0;
-    let seeds = seeds(surface, positions, grid.voxel(), grid_bounds(inner, pose), inside);
+    let bounds = grid_bounds(inner, pose);
+    let mut seeds = seeds(surface, positions, grid.voxel(), bounds, inside);
+    seeds.extend(grid.voxels_near(bounds, 0.0, |c| inside(c) < 0.0));
     if seeds.is_empty() {
         return seeds;
     }
@@ -122,7 +162,8 @@ pub fn links_crossed(
     positions: &[Vec3],
 ) -> Vec<(u32, u32)> {
     let reach = 1.5 * grid.voxel();
-    let seeds = seeds(surface, positions, reach, blade.bounds(), |p| blade.distance(p));
+    let mut seeds = seeds(surface, positions, reach, blade.bounds(), |p| blade.distance(p));
+    seeds.extend(grid.voxels_near(blade.bounds(), reach, |c| blade.distance(c) < reach));
     if seeds.is_empty() {
         return Vec::new();
     }

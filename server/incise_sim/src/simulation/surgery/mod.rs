@@ -90,6 +90,11 @@ pub struct SurgicalFrame {
     pub tools: Vec<ToolFrame>,
     /// The cuts made.
     pub cuts: Vec<CutEvent>,
+    /// What the cuts did to the grid: the voxels removed and the links severed, sorted (what a
+    /// recording needs to replay them).
+    pub edit: GridEdit,
+    /// The tetrahedra removed (tensor-mass scenes), in order of removal.
+    pub tets_removed: Vec<usize>,
     /// How the surface changed.
     pub surface: SurfaceChanges,
 }
@@ -226,8 +231,8 @@ impl Simulation {
         counters.surface_ns += elapsed(t);
 
         let t = Instant::now();
-        let mut contacts = self.contacts(surgery, dt);
-        let live = surgery.surface.live_vertices();
+        let mut contacts = Self::contacts(surgery, dt);
+        let live = surgery.surface.live_vertices().to_vec();
         for (i, rig) in surgery.rigs.iter_mut().enumerate() {
             let (Some(pose), Some(jaws)) = (rig.pose, rig.spec.jaws) else { continue };
             let touching = !contacts[i].points.is_empty();
@@ -248,7 +253,7 @@ impl Simulation {
             for rig in &mut surgery.rigs {
                 rig.grasp.retain(|v| surface.is_live(v));
             }
-            contacts = self.contacts(surgery, dt);
+            contacts = Self::contacts(surgery, dt);
             counters.contact_ns += elapsed(t);
         }
 
@@ -298,7 +303,7 @@ impl Simulation {
     }
 
     /// Each tool's contact (empty for a tool without a pose).
-    fn contacts(&self, surgery: &Surgery, dt: f64) -> Vec<Contact> {
+    fn contacts(surgery: &Surgery, dt: f64) -> Vec<Contact> {
         let Surgery { surface, positions, velocities, rigs } = surgery;
         let live = surface.live_vertices();
         rigs.iter()
@@ -388,6 +393,7 @@ impl Simulation {
         } else {
             let removed = self.remove_tets_only(&tets)?;
             counters.tets_removed = removed.len();
+            frame.tets_removed = removed;
             None
         };
         counters.grid_ns += elapsed(t);
@@ -406,6 +412,9 @@ impl Simulation {
         };
         counters.remesh_ns += elapsed(t);
         frame.cuts = events;
+        if changes.is_some() {
+            frame.edit = edit;
+        }
         Ok(true)
     }
 
@@ -418,6 +427,9 @@ impl Simulation {
 
     /// Builds the organ's surface in a scene without tools, so that [`Self::surface`] and
     /// [`Self::surface_positions`] have it (a scene with tools has it from the start).
+    ///
+    /// # Panics
+    /// Never: a scene without tools has no mesh file to load.
     pub fn enable_surface(&mut self) {
         if self.surgery.is_some() {
             return;

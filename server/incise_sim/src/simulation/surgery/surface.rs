@@ -18,11 +18,13 @@ pub enum OrganSurface {
     /// Marching cubes on the grid's fine voxels, embedded in its top-level elements.
     Voxels {
         /// The triangles and vertices.
-        surface: Surface,
+        surface: Box<Surface>,
         /// Each vertex's embedding, by grid node id.
         mapping: SurfaceMapping,
         /// Model node index of each grid node id (`u32::MAX`: no such node).
         model_of_grid: Vec<u32>,
+        /// The live vertices, sorted.
+        live: Vec<u32>,
     },
     /// The boundary of the live tetrahedra; its vertices are the mesh's.
     Tetrahedra {
@@ -35,13 +37,17 @@ pub enum OrganSurface {
 
 impl OrganSurface {
     /// The voxel surface of `grid` (whose model is `model`).
+    #[must_use]
     pub fn voxels(grid: &BranchedGrid, model: &HexModel, options: &SurfaceOptions) -> Self {
         let surface = Surface::extract(grid.fine(), grid.spacing(), options);
         let mapping = SurfaceMapping::embed(&surface, grid, &|g| g);
-        Self::Voxels { surface, mapping, model_of_grid: model_of_grid(grid, model) }
+        let live = live_of(&surface);
+        let surface = Box::new(surface);
+        Self::Voxels { surface, mapping, model_of_grid: model_of_grid(grid, model), live }
     }
 
     /// The boundary surface of `topology`.
+    #[must_use]
     pub fn tetrahedra(topology: &TetTopology) -> Self {
         let surface = TetSurface::new(topology);
         let boundary = boundary_vertices(&surface);
@@ -49,6 +55,7 @@ impl OrganSurface {
     }
 
     /// Live triangles.
+    #[must_use]
     pub fn triangle_count(&self) -> usize {
         match self {
             Self::Voxels { surface, .. } => surface.triangle_count(),
@@ -57,6 +64,7 @@ impl OrganSurface {
     }
 
     /// The live triangles as vertex triples (vertex ids index [`Self::deform`]'s output).
+    #[must_use]
     pub fn triangle_list(&self) -> Vec<[u32; 3]> {
         match self {
             Self::Voxels { surface, .. } => surface.triangle_list(),
@@ -65,31 +73,25 @@ impl OrganSurface {
     }
 
     /// The live vertices, in id order.
-    pub fn live_vertices(&self) -> Vec<u32> {
+    #[must_use]
+    pub fn live_vertices(&self) -> &[u32] {
         match self {
-            Self::Voxels { surface, .. } => surface
-                .vertices()
-                .iter()
-                .enumerate()
-                .filter(|(_, v)| v.alive)
-                .map(|(i, _)| i as u32)
-                .collect(),
-            Self::Tetrahedra { boundary, .. } => boundary.clone(),
+            Self::Voxels { live, .. } => live,
+            Self::Tetrahedra { boundary, .. } => boundary,
         }
     }
 
     /// Whether vertex `v` exists.
+    #[must_use]
     pub fn is_live(&self, v: u32) -> bool {
-        match self {
-            Self::Voxels { surface, .. } => {
-                surface.vertices().get(v as usize).is_some_and(|x| x.alive)
-            }
-            Self::Tetrahedra { boundary, .. } => boundary.binary_search(&v).is_ok(),
-        }
+        self.live_vertices().binary_search(&v).is_ok()
     }
 
     /// The deformed position of every vertex slot for node positions `x` (model order); dead
     /// slots hold anything.
+    ///
+    /// # Panics
+    /// On a voxel surface without the hexahedral `model` it belongs to.
     pub fn deform(&self, x: &[Vec3], model: Option<&HexModel>, out: &mut Vec<Vec3>) {
         match self {
             Self::Voxels { mapping, model_of_grid, .. } => {
@@ -109,6 +111,7 @@ impl OrganSurface {
     }
 
     /// Vertex `v`'s embedding in model node indices.
+    #[must_use]
     pub fn embedding(&self, v: u32) -> EmbeddedPoint {
         match self {
             Self::Voxels { mapping, model_of_grid, .. } => {
@@ -127,6 +130,7 @@ impl OrganSurface {
     }
 
     /// The voxel that owns vertex `v` (`None` on a tetrahedral surface).
+    #[must_use]
     pub fn owner_voxel(&self, v: u32) -> Option<u32> {
         match self {
             Self::Voxels { surface, .. } => surface.vertices().get(v as usize).map(|x| x.voxel),
@@ -145,11 +149,12 @@ impl OrganSurface {
         changes: &GridChanges,
     ) -> SurfaceChanges {
         match self {
-            Self::Voxels { surface, mapping, model_of_grid: map, .. } => {
+            Self::Voxels { surface, mapping, model_of_grid: map, live } => {
                 let surface_changes = surface.remesh(grid.fine(), voxels);
                 let changed = incise_surface::changed_elements(changes);
                 mapping.update(surface, grid, &changed, &surface_changes, &|g| g);
                 *map = model_of_grid(grid, model);
+                *live = live_of(surface);
                 surface_changes
             }
             Self::Tetrahedra { .. } => SurfaceChanges::default(),
@@ -167,6 +172,11 @@ impl OrganSurface {
             Self::Voxels { .. } => SurfaceChanges::default(),
         }
     }
+}
+
+/// The live vertices of `surface`, sorted.
+fn live_of(surface: &Surface) -> Vec<u32> {
+    surface.vertices().iter().enumerate().filter(|(_, v)| v.alive).map(|(i, _)| i as u32).collect()
 }
 
 /// Model index of each grid node id.

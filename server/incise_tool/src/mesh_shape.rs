@@ -215,7 +215,7 @@ mod tests {
             let (a, na) = mesh.distance(p);
             let (b, nb) = cuboid.distance(p);
             assert!((a - b).abs() < 1e-12, "{p:?}: mesh {a}, box {b}");
-            if b > 1e-9 || b < -1e-9 {
+            if b.abs() > 1e-9 {
                 let off_medial = (0..3).map(|k| (na[k] - nb[k]).abs()).fold(0.0, f64::max);
                 // Inside, at points equidistant from two faces, either face's normal is right.
                 assert!(off_medial < 1e-9 || b < 0.0, "{p:?}: {na:?} vs {nb:?}");

@@ -814,3 +814,36 @@ fn a_mesh_scene_names_its_region_array_and_is_told_what_was_skipped() {
     assert!(e.contains("region array") && e.contains("\"gmsh:physical\""), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_block_cut_scene_alone_reproduces_its_cut() {
+    // Its scalpel follows the scene's waypoints: it touches the top and presses without cutting
+    // until 0.4 s, is pushed in until its blade bites, and is drawn across.
+    let run = || {
+        let path = scene("block_cut.toml");
+        let scene_file = incise_scene::read_scene(&path).unwrap();
+        let mut sim = Simulation::new(&scene_file.config, &scene_file.geometry, "block_cut").unwrap();
+        let (mut pressed, mut cut_early, mut removed) = (0.0f64, 0usize, 0usize);
+        let mut last = 0;
+        for _ in 0..1300 {
+            let frame = sim.step(&StepInputs::default()).unwrap();
+            let force = frame.surgical.tools[0].force()[2];
+            if frame.time <= 0.4 {
+                pressed = pressed.max(force);
+                cut_early += frame.counters.voxels_removed;
+            }
+            removed += frame.counters.voxels_removed;
+            last = frame.state_hash;
+        }
+        let triangles = sim.surface().unwrap().triangle_list();
+        incise_mesh::topology::check_closed(&triangles).unwrap();
+        incise_mesh::topology::check_manifold(&triangles).unwrap();
+        (pressed, cut_early, removed, last)
+    };
+    let (pressed, cut_early, removed, hash) = run();
+    println!("pressed with {pressed:.4} N without cutting; {removed} voxels cut");
+    assert!(pressed > 0.005, "the scalpel touches the top before 0.4 s");
+    assert_eq!(cut_early, 0, "no cut while it only presses");
+    assert!(removed > 50, "the stroke cuts");
+    assert_eq!(run().3, hash, "the scene replays bit for bit");
+}

@@ -822,7 +822,8 @@ fn the_block_cut_scene_alone_reproduces_its_cut() {
     let run = || {
         let path = scene("block_cut.toml");
         let scene_file = incise_scene::read_scene(&path).unwrap();
-        let mut sim = Simulation::new(&scene_file.config, &scene_file.geometry, "block_cut").unwrap();
+        let mut sim =
+            Simulation::new(&scene_file.config, &scene_file.geometry, "block_cut").unwrap();
         let (mut pressed, mut cut_early, mut removed) = (0.0f64, 0usize, 0usize);
         let mut last = 0;
         for _ in 0..1300 {

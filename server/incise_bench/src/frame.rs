@@ -468,7 +468,7 @@ fn print_report(r: &Report) {
         r.frame_hz_median, r.frame_ms_median, r.frame_ms_p99
     );
     println!(
-        "cut stroke: {} voxels over {} frames; grid + condensation + re-mesh {:.3} ms over those frames (search {:.3} ms); in one edit {}",
+        "cut stroke: {} cells over {} frames; grid + condensation + re-mesh {:.3} ms over those frames (search {:.3} ms); in one edit {}",
         r.cut_stroke_voxels,
         r.cut_stroke_frames,
         r.cut_stroke_ms,

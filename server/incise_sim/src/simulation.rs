@@ -415,7 +415,12 @@ impl Simulation {
                                 .into(),
                         ));
                     }
-                    OrganSurface::voxels(&hex.grid, &hex.model, &surgery::surface_options())
+                    OrganSurface::voxels(
+                        &hex.grid,
+                        &hex.model,
+                        &surgery::surface_options(&config, &hex.grid),
+                        config.surface.smoothing,
+                    )
                 }
                 Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
             };

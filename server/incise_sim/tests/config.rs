@@ -569,3 +569,20 @@ fn tool_errors_name_the_key_and_line() {
         assert!(e.to_string().contains(what), "{e}");
     }
 }
+
+#[test]
+fn the_surface_keys_are_checked() {
+    use incise_sim::config::SurfaceSpec;
+    let config = SceneConfig::from_toml(
+        &format!("{GOOD}[surface]\ninterfaces = true\nsmoothing = 3\n"),
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(config.surface, SurfaceSpec { interfaces: true, smoothing: 3 });
+    assert_eq!(SceneConfig::from_toml(GOOD, "t.toml").unwrap().surface, SurfaceSpec::default());
+    let e = error(&format!("{GOOD}[surface]\nsmoothing = 1000\n"));
+    let line = GOOD.lines().count() + 2;
+    assert_eq!(where_(&e), (line, "surface.smoothing".to_owned()), "{e}");
+    let e = error(&format!("{GOOD}[surface]\nsmooth = 2\n"));
+    assert!(e.to_string().contains("smooth"), "{e}");
+}

@@ -81,6 +81,20 @@ pub struct SceneConfig {
     pub exec: ExecSpec,
     /// The tools (`[[tools]]`).
     pub tools: Vec<ToolSpec>,
+    /// How the organ's surface is built (`[surface]`).
+    pub surface: SurfaceSpec,
+}
+
+/// `[surface]`: how the organ's surface is built (for the tools, and for rendering).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SurfaceSpec {
+    /// One closed surface per material, coincident where tissues touch, instead of one surface
+    /// of the whole organ (`interfaces = true`: a scene that shows the liver/kidney boundary).
+    pub interfaces: bool,
+    /// Taubin smoothing steps on the rest surface (`smoothing`, 0 = none): the vertices stay
+    /// within half a voxel of their voxels, so the embedding stays valid. Vertices a cut creates
+    /// start unsmoothed at their voxel face centres.
+    pub smoothing: u32,
 }
 
 /// The mechanical model, with the geometry it is built on and the integrator that steps it.
@@ -540,6 +554,17 @@ struct RawScene {
     exec: Option<RawExec>,
     #[serde(default)]
     tools: Vec<Spanned<tools::RawTool>>,
+    #[serde(default)]
+    surface: Option<RawSurface>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSurface {
+    #[serde(default)]
+    interfaces: Option<bool>,
+    #[serde(default)]
+    smoothing: Option<Spanned<i64>>,
 }
 
 #[derive(Deserialize)]
@@ -1191,6 +1216,26 @@ impl Checker<'_> {
         })
     }
 
+    /// `[surface]`.
+    fn surface(&self, s: Option<&RawSurface>) -> Result<SurfaceSpec, SceneError> {
+        let Some(s) = s else { return Ok(SurfaceSpec::default()) };
+        let smoothing = match &s.smoothing {
+            None => 0,
+            Some(n) => {
+                let v = *n.get_ref();
+                if !(0..=100).contains(&v) {
+                    return Err(self.invalid(
+                        n.span(),
+                        "surface.smoothing",
+                        format!("is {v}; it must be between 0 and 100 steps"),
+                    ));
+                }
+                v as u32
+            }
+        };
+        Ok(SurfaceSpec { interfaces: s.interfaces.unwrap_or(false), smoothing })
+    }
+
     /// `[exec]`.
     fn exec(&self, e: Option<&RawExec>) -> Result<ExecSpec, SceneError> {
         let Some(e) = e else { return Ok(ExecSpec::default()) };
@@ -1642,6 +1687,7 @@ impl SceneConfig {
             None => [0.0, 0.0, -9.81],
         };
         let tools = c.tools(&raw.tools)?;
-        Ok(Self { name: raw.name, model, materials, gravity, fixed, loads, exec, tools })
+        let surface = c.surface(raw.surface.as_ref())?;
+        Ok(Self { name: raw.name, model, materials, gravity, fixed, loads, exec, tools, surface })
     }
 }

@@ -157,9 +157,17 @@ impl Surgery {
     }
 }
 
-/// The default surface of a scene: one closed surface of all the organ's materials.
-pub(crate) fn surface_options() -> SurfaceOptions {
-    SurfaceOptions::default()
+/// The scene's surface groups: one closed surface of all the organ's materials, or one per
+/// material with `[surface] interfaces = true`.
+pub(crate) fn surface_options(
+    config: &crate::SceneConfig,
+    grid: &incise_grid::BranchedGrid,
+) -> SurfaceOptions {
+    if config.surface.interfaces {
+        SurfaceOptions::per_material(grid.materials().count() as u16)
+    } else {
+        SurfaceOptions::default()
+    }
 }
 
 impl Simulation {
@@ -435,9 +443,12 @@ impl Simulation {
             return;
         }
         let surface = match &self.body {
-            super::Body::Hex(hex) => {
-                OrganSurface::voxels(&hex.grid, &hex.model, &surface_options())
-            }
+            super::Body::Hex(hex) => OrganSurface::voxels(
+                &hex.grid,
+                &hex.model,
+                &surface_options(&self.config, &hex.grid),
+                self.config.surface.smoothing,
+            ),
             super::Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
         };
         self.surgery =

@@ -36,10 +36,20 @@ pub enum OrganSurface {
 }
 
 impl OrganSurface {
-    /// The voxel surface of `grid` (whose model is `model`).
+    /// The voxel surface of `grid` (whose model is `model`), its rest positions smoothed by
+    /// `smoothing` Taubin steps.
     #[must_use]
-    pub fn voxels(grid: &BranchedGrid, model: &HexModel, options: &SurfaceOptions) -> Self {
-        let surface = Surface::extract(grid.fine(), grid.spacing(), options);
+    pub fn voxels(
+        grid: &BranchedGrid,
+        model: &HexModel,
+        options: &SurfaceOptions,
+        smoothing: u32,
+    ) -> Self {
+        let mut surface = Surface::extract(grid.fine(), grid.spacing(), options);
+        if smoothing > 0 {
+            let rest = surface.smoothed_rest(smoothing as usize, 0.5);
+            surface.set_rest(&rest);
+        }
         let mapping = SurfaceMapping::embed(&surface, grid, &|g| g);
         let live = live_of(&surface);
         let surface = Box::new(surface);

@@ -116,5 +116,5 @@ fn the_check_sees_a_violation_where_there_is_one() {
     // the closure above would be missing edges.
     let closure = runtime_closure();
     let bad = violations(&closure, &["incise_scene"], MECHANICS);
-    assert_eq!(bad, ["incise_scene depends on incise_fem, incise_sim".to_owned()]);
+    assert_eq!(bad, ["incise_scene depends on incise_fem, incise_sim, incise_tool".to_owned()]);
 }

@@ -3,7 +3,7 @@
 //!
 //! Every surface point inside the outer shape gets a spring toward the shape's surface along the
 //! outward normal: force `k · depth` along `n`, stiffness `k n nᵀ` (an
-//! [`EmbeddedSpring`](incise_fem::forcefield::springs::EmbeddedSpring) whose target is the
+//! [`EmbeddedSpring`] whose target is the
 //! point's projection on the shape's tangent plane), spread to the nodes by the point's
 //! embedding. The springs enter the implicit step's matrix, so a stiff contact is as stable as
 //! the tissue. Damping along the normal (`c`, on the point's velocity relative to the tool) is

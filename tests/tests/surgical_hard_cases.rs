@@ -582,7 +582,7 @@ inner = { shape = \"sphere\", radius = 0.003 }
     assert!(rise > 0.8 * lift, "the held patch rose {rise} m");
 }
 
-/// SplitMix64: a fixed stream of pseudo-random numbers, so every run makes the same cuts.
+/// `SplitMix64`: a fixed stream of pseudo-random numbers, so every run makes the same cuts.
 struct SplitMix(u64);
 
 impl SplitMix {
@@ -699,7 +699,8 @@ outer = { shape = \"sphere\", radius = 0.008 }
         let depth = -0.002 + 0.00005 * f64::from(i);
         let frame = drive(&mut sim, at(0, [depth - radius, 0.02, 0.01]));
         for (k, &n) in fixed.iter().enumerate() {
-            assert_eq!(sim.state().x[n], rest[k], "step {i}: held node {n} moved");
+            let bits = |p: Vec3| p.map(f64::to_bits);
+            assert_eq!(bits(sim.state().x[n]), bits(rest[k]), "step {i}: held node {n} moved");
         }
         let tool = &frame.surgical.tools[0];
         forces.push((depth, tool.force(), tool.contact_points));
@@ -971,10 +972,11 @@ inner = { shape = \"blade\", length = 0.06, height = 0.03, thickness = 0.0005 }
 /// linearisation holds the tissue still, the step lets the springs push it. In one implicit step
 /// the contact springs (k each, and the scene's stiffness damping β applies to them too) act
 /// against the tissue's `M/h² + (1 + β/h)K`; the surface points give way by a fraction of the
-/// move, and the actual change is that much smaller. Measured: see the printout; the tolerance is
-/// the measured ratio's band with margin: same direction, and between 50 % and 100 % of the
-/// prediction (the prediction can only overestimate: the tissue yields, never pushes back harder
-/// than held still).
+/// move, and the actual change is that much smaller. Measured: 0.0738 N against 0.0800 N
+/// predicted, a ratio of 0.923 (the 4 points under the face, whose normals are along the move,
+/// gave way by 7.7 % of it). The tolerance keeps the direction and allows the ratio 0.8–1.0,
+/// over twice the measured miss: above 1 would be wrong in kind (the prediction holds the tissue
+/// still, and the tissue can only yield, never push back harder than held still).
 #[test]
 fn the_linearisation_predicts_the_next_frames_force() {
     let tool = "[[tools]]
@@ -1020,7 +1022,7 @@ outer = { shape = \"box\", half_extents = [0.004, 0.004, 0.002] }
     assert!(drift.abs() < 0.01 * predicted.abs(), "not steady: the force drifts {drift} N a frame");
     assert_eq!(same.surgical.tools[0].contact_points, deeper.surgical.tools[0].contact_points);
     let ratio = actual / predicted;
-    assert!((0.5..=1.0).contains(&ratio), "actual {actual} N against predicted {predicted} N");
+    assert!((0.8..=1.0).contains(&ratio), "actual {actual} N against predicted {predicted} N");
 }
 
 /// Determinism across thread counts with tools: two simulations of a 12³-voxel block at level 0

@@ -90,8 +90,9 @@ pub struct StepInputs {
     pub node_forces: Vec<(usize, Vec3)>,
     /// Poses for the scene's tools this step (a tool given none keeps its scripted or last
     /// pose). A pose is checked when it is built ([`incise_tool::ToolPose::new`]: finite, unit
-    /// quaternion); a tool index the scene lacks, or a gripper angle that is not finite and ≥ 0,
-    /// is refused here.
+    /// quaternion); a tool index the scene lacks, a pose that is not finite (one built unchecked,
+    /// by `Pose::at` or `Pose::moved`, from a NaN or infinite number), or a gripper angle that is
+    /// not finite and ≥ 0, is refused here.
     pub tools: Vec<ToolInput>,
 }
 
@@ -127,6 +128,19 @@ pub enum InputError {
         tool: usize,
         /// Tools in the scene.
         tools: usize,
+    },
+    /// A pose with a NaN or infinite position or rotation (`Pose::at` and `Pose::moved` do not
+    /// check what they are given).
+    #[error(
+        "tools[{entry}]: the pose (position {position:?} m, rotation {rotation:?}) is not finite"
+    )]
+    BadPose {
+        /// Index into `tools`.
+        entry: usize,
+        /// The position given.
+        position: Vec3,
+        /// The rotation given, `(w, x, y, z)`.
+        rotation: [f64; 4],
     },
     /// A gripper angle that is not finite or is negative.
     #[error("tools[{entry}]: the gripper angle {gripper} rad is not a finite angle ≥ 0")]

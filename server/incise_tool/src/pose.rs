@@ -74,7 +74,9 @@ impl Pose {
         Ok(Self { position, rotation, matrix: rotation.to_matrix() })
     }
 
-    /// A translation only.
+    /// A translation only. Unchecked (for positions the program computes): a NaN or infinite
+    /// coordinate makes a pose that `Simulation::step` refuses; a position from outside goes
+    /// through [`Self::new`].
     #[must_use]
     pub fn at(position: Vec3) -> Self {
         Self { position, ..Self::IDENTITY }
@@ -133,6 +135,7 @@ impl Pose {
 
     /// The pose moved by a small translation `dt` (m) and a small rotation vector `dtheta`
     /// (rad, grid frame, about the tool's origin): what a haptic loop extrapolates over.
+    /// Unchecked like [`Self::at`]: a NaN or infinite translation makes a pose that is not finite.
     #[must_use]
     pub fn moved(&self, dt: Vec3, dtheta: Vec3) -> Self {
         let angle = dtheta.iter().map(|c| c * c).sum::<f64>().sqrt();

@@ -178,6 +178,13 @@ impl Simulation {
             if input.tool >= tools {
                 return Err(InputError::NoSuchTool { entry, tool: input.tool, tools });
             }
+            // `Pose::at` and `Pose::moved` build poses unchecked: a NaN from a device driver
+            // would otherwise drop the tool's contact for a frame and poison the next frame's
+            // swept test, with the state moved as if the tool had been withdrawn.
+            let (position, rotation) = (input.pose.pose.position(), input.pose.pose.rotation());
+            if !position.iter().chain(&rotation).all(|c| c.is_finite()) {
+                return Err(InputError::BadPose { entry, position, rotation });
+            }
             let gripper = input.pose.gripper;
             if !(gripper.is_finite() && gripper >= 0.0) {
                 return Err(InputError::BadGripper { entry, gripper });

@@ -73,7 +73,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let c = s.remesh(g.fine(), &edit.remove_voxels);
                 t_remesh.push(t.elapsed().as_secs_f64() * 1e3);
                 let t = Instant::now();
-                count = m.update(&s, &g, &changed_elements(&grid_changes), &c, &node);
+                count = m.update_by_grid_node(&s, &g, &changed_elements(&grid_changes), &c);
                 t_update.push(t.elapsed().as_secs_f64() * 1e3);
                 changes = Some(c);
             }

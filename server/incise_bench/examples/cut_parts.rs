@@ -11,42 +11,43 @@
 use incise_fem::model::State;
 use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
 use incise_grid::{BranchedGrid, GridEdit};
-use incise_sim::Simulation;
 use incise_sim::config::{Level, Model, VolumeSpec};
+use incise_sim::{OrganSurface, Simulation};
 use incise_surface::{Surface, SurfaceMapping, SurfaceOptions, changed_elements};
 use std::time::Instant;
 
-/// Timed steps, in the order a cut takes them.
+/// Timed steps, in the order a cut takes them, their sum, and the surface's step split by a
+/// replay on a twin surface (not in the sum).
 const PARTS: [&str; 9] = [
     "grid.apply",
     "model update",
     "state across cut",
     "force field remap",
     "fixed nodes",
-    "surface remesh",
-    "mapping update",
-    "node map + live list",
+    "surface",
     "sum",
+    "(surface: remesh)",
+    "(surface: re-embed)",
 ];
 
 /// The mechanics and surface a cut updates.
-#[derive(Clone)]
 struct Body {
     grid: BranchedGrid,
     model: HexModel,
     field: HexForceField,
     state: State,
+    organ: OrganSurface,
+    /// The organ's surface and embedding again, to time re-meshing and re-embedding apart.
     surface: Surface,
     mapping: SurfaceMapping,
-    model_of_grid: Vec<u32>,
-    live: Vec<u32>,
 }
 
 /// The box the liver scene holds its top by.
 const HOLD: ([f64; 3], [f64; 3]) = ([-1.0, -1.0, 0.17], [1.0, 1.0, 1.0]);
 
 impl Body {
-    /// One cut, step by step as `Simulation::cut` takes them; each step's time (µs).
+    /// One cut (removing sorted voxels), step by step as `Simulation::cut` takes them; each
+    /// step's time (µs).
     fn cut(&mut self, edit: &GridEdit) -> [f64; PARTS.len()] {
         let mut t = [0.0; PARTS.len()];
         let mut clock = Instant::now();
@@ -56,48 +57,37 @@ impl Body {
         };
         let changes = self.grid.apply(edit).expect("the stroke's voxels exist");
         lap(0, &mut t);
-        let model = self.model.updated(&self.grid, &changes);
+        let renumbering = self.model.update(&self.grid, &changes);
         lap(1, &mut t);
-        let carried = self.state.across_cut(&self.model, &model, &changes);
+        let old_of_new = self.state.carry(&self.model, &renumbering, &changes);
         lap(2, &mut t);
-        let origin_of: std::collections::BTreeMap<u32, u32> =
-            changes.top.elements_added.iter().filter_map(|&(id, o)| o.map(|o| (id, o))).collect();
-        self.field = self.field.remapped(&self.model, &model, |g| origin_of.get(&g).copied());
+        let added = &changes.top.elements_added;
+        self.field.remap(&self.model, &renumbering, |g| {
+            added.iter().find(|&&(id, _)| id == g).and_then(|&(_, origin)| origin)
+        });
         lap(3, &mut t);
-        let fixed = FixedNodes::none(model.node_count()).union(&FixedNodes::aabb(
-            &model.rest,
+        let fixed = FixedNodes::none(self.model.node_count()).union(&FixedNodes::aabb(
+            &self.model.rest,
             HOLD.0,
             HOLD.1,
         ));
-        let mut state = carried.state;
-        for (i, v) in state.v.iter_mut().enumerate() {
+        for (i, v) in self.state.v.iter_mut().enumerate() {
             if fixed.is_fixed(i) {
                 *v = [0.0; 3];
             }
         }
-        std::hint::black_box(vec![[0.0; 3]; model.node_count()]);
+        std::hint::black_box((vec![[0.0; 3]; self.model.node_count()], old_of_new));
         lap(4, &mut t);
-        self.model = model;
-        self.state = state;
-        let surface_changes = self.surface.remesh(self.grid.fine(), &edit.remove_voxels);
+        self.organ.after_grid_edit(&self.grid, &self.model, &edit.remove_voxels, &changes);
         lap(5, &mut t);
+        t[6] = t[..6].iter().sum();
+        let clock = Instant::now();
+        let surface_changes = self.surface.remesh(self.grid.fine(), &edit.remove_voxels);
+        t[7] = clock.elapsed().as_secs_f64() * 1e6;
+        let clock = Instant::now();
         let changed = changed_elements(&changes);
-        self.mapping.update(&self.surface, &self.grid, &changed, &surface_changes, &|g| g);
-        lap(6, &mut t);
-        self.model_of_grid = vec![u32::MAX; self.grid.top().node_capacity()];
-        for (i, &g) in self.model.grid_node.iter().enumerate() {
-            self.model_of_grid[g as usize] = i as u32;
-        }
-        self.live = self
-            .surface
-            .vertices()
-            .iter()
-            .enumerate()
-            .filter(|(_, v)| v.alive)
-            .map(|(i, _)| i as u32)
-            .collect();
-        lap(7, &mut t);
-        t[PARTS.len() - 1] = t[..PARTS.len() - 1].iter().sum();
+        self.mapping.update_by_grid_node(&self.surface, &self.grid, &changed, &surface_changes);
+        t[8] = clock.elapsed().as_secs_f64() * 1e6;
         t
     }
 }
@@ -125,10 +115,10 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// `edits` one after the other, on a copy of `body` (per-part medians) and through
+/// `edits` one after the other, on a new `body()` (per-part medians) and through
 /// `Simulation::cut` on a fresh simulation (its median), `repeat` times each (from scratch).
 fn measure(
-    body: &Body,
+    body: &dyn Fn() -> Body,
     fresh: Option<&dyn Fn() -> Simulation>,
     edits: &[GridEdit],
     repeat: usize,
@@ -136,7 +126,7 @@ fn measure(
     let mut parts: Vec<Vec<f64>> = vec![Vec::new(); PARTS.len()];
     let mut whole = Vec::new();
     for _ in 0..repeat {
-        let mut b = body.clone();
+        let mut b = body();
         for edit in edits {
             for (k, t) in b.cut(edit).into_iter().enumerate() {
                 parts[k].push(t);
@@ -194,21 +184,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sim
         };
         let sim = fresh();
-        let grid = sim.grid().expect("hexahedral").clone();
-        let model = sim.model().expect("hexahedral").clone();
-        let surface = Surface::extract(grid.fine(), grid.spacing(), &SurfaceOptions::default());
-        let body = Body {
-            field: HexForceField::new(&model, Formulation::Corotational),
-            state: State::at_rest(&model),
-            mapping: SurfaceMapping::embed(&surface, &grid, &|g| g),
-            model_of_grid: Vec::new(),
-            live: Vec::new(),
-            surface,
-            grid,
-            model,
+        let (grid, model) = (sim.grid().expect("hexahedral"), sim.model().expect("hexahedral"));
+        let options = SurfaceOptions::default();
+        let surface = Surface::extract(grid.fine(), grid.spacing(), &options);
+        let mapping = SurfaceMapping::embed(&surface, grid, &|g| g);
+        let body = || Body {
+            field: HexForceField::new(model, Formulation::Corotational),
+            state: State::at_rest(model),
+            organ: OrganSurface::voxels(grid, model, &options),
+            mapping: mapping.clone(),
+            surface: surface.clone(),
+            grid: grid.clone(),
+            model: model.clone(),
         };
-        let voxels = stroke(&body.grid, 500);
-        let edit = |v: &[u32]| GridEdit { remove_voxels: v.to_vec(), sever_links: Vec::new() };
+        let voxels = stroke(grid, 500);
+        let edit = |v: &[u32]| {
+            let mut remove_voxels = v.to_vec();
+            remove_voxels.sort_unstable();
+            GridEdit { remove_voxels, sever_links: Vec::new() }
+        };
         let mut cases: Vec<(String, Vec<GridEdit>, usize)> = [1, 5, 20]
             .into_iter()
             .map(|k| {
@@ -221,9 +215,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let (parts, whole) = measure(&body, (!parts_only).then_some(&fresh), &edits, repeat);
             print!(
                 "| {} | {} | {} | {name} |",
-                body.grid.fine().voxel_count(),
-                body.model.elements.len(),
-                body.model.node_count()
+                grid.fine().voxel_count(),
+                model.elements.len(),
+                model.node_count()
             );
             for t in parts {
                 print!(" {t:.1} |");

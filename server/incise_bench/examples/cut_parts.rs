@@ -186,16 +186,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let sim = fresh();
         let (grid, model) = (sim.grid().expect("hexahedral"), sim.model().expect("hexahedral"));
         let options = SurfaceOptions::default();
-        let surface = Surface::extract(grid.fine(), grid.spacing(), &options);
-        let mapping = SurfaceMapping::embed(&surface, grid, &|g| g);
-        let body = || Body {
-            field: HexForceField::new(model, Formulation::Corotational),
-            state: State::at_rest(model),
-            organ: OrganSurface::voxels(grid, model, &options),
-            mapping: mapping.clone(),
-            surface: surface.clone(),
-            grid: grid.clone(),
-            model: model.clone(),
+        // Surfaces extracted, not cloned: a clone has no room to grow, and its first cut would
+        // pay for moving every vertex and triangle.
+        let body = || {
+            let surface = Surface::extract(grid.fine(), grid.spacing(), &options);
+            Body {
+                field: HexForceField::new(model, Formulation::Corotational),
+                state: State::at_rest(model),
+                organ: OrganSurface::voxels(grid, model, &options),
+                mapping: SurfaceMapping::embed(&surface, grid, &|g| g),
+                surface,
+                grid: grid.clone(),
+                model: model.clone(),
+            }
         };
         let voxels = stroke(grid, 500);
         let edit = |v: &[u32]| {

@@ -65,13 +65,17 @@ impl SurfaceMapping {
     #[must_use]
     pub fn embed(surface: &Surface, grid: &BranchedGrid, node_index: &dyn Fn(u32) -> u32) -> Self {
         let vertices = surface.vertices();
+        let n = vertices.len();
         let mut m = Self {
-            embeddings: vec![Embedding::default(); vertices.len()],
-            grid_nodes: vec![[0; 8]; vertices.len()],
-            live: vertices.iter().map(|v| v.alive).collect(),
-            cell: vec![u32::MAX; vertices.len()],
+            embeddings: with_room_of(n, Embedding::default()),
+            grid_nodes: with_room_of(n, [0; 8]),
+            live: with_room_of(n, false),
+            cell: with_room_of(n, u32::MAX),
             cell_vertices: vec![Vec::new(); cell_count(grid)],
         };
+        for (live, v) in m.live.iter_mut().zip(vertices) {
+            *live = v.alive;
+        }
         for (i, v) in vertices.iter().enumerate() {
             if v.alive {
                 let cell;
@@ -299,6 +303,14 @@ impl SurfaceMapping {
             }
         }
     }
+}
+
+/// `n` copies of `fill`, with room for a few cuts' new vertices (growing a full vector would
+/// copy every slot on one cut).
+fn with_room_of<T: Clone>(n: usize, fill: T) -> Vec<T> {
+    let mut v = Vec::with_capacity(n + n / 8 + 64);
+    v.resize(n, fill);
+    v
 }
 
 /// Cells of `grid`'s top level.

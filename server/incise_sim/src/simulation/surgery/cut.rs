@@ -60,13 +60,13 @@ impl DeformedGrid<'_> {
         for a in 0..3 {
             if c[a] > 0 {
                 let w = v - stride[a];
-                if fine.material(w).is_some() && !fine.is_severed(v, w) {
+                if fine.material(w).is_some() && !fine.is_severed_along(w, a) {
                     out.push(w);
                 }
             }
             if c[a] + 1 < d[a] {
                 let w = v + stride[a];
-                if fine.material(w).is_some() && !fine.is_severed(v, w) {
+                if fine.material(w).is_some() && !fine.is_severed_along(v, a) {
                     out.push(w);
                 }
             }

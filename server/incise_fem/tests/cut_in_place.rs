@@ -119,10 +119,10 @@ fn a_cut_in_place_equals_a_cut_on_copies() {
         be.remap_warm_start(&old_of_new);
 
         println!(
-            "{what}: {} voxels removed, {} links severed; {} elements rebuilt of {}, {} nodes added, {} removed",
+            "{what}: {} voxels removed, {} links severed; {} of {} elements with new matrices, {} nodes added, {} removed",
             changes.voxels_removed,
             changes.links_severed,
-            renumbering.rebuilt.len(),
+            renumbering.new_matrices.len(),
             model.elements.len(),
             changes.top.nodes_added.len(),
             changes.top.nodes_removed.len()

@@ -50,8 +50,8 @@ impl HexModel {
     }
 
     /// The model of `grid` after an edit whose change list is `changes`, `self` being the model
-    /// of the grid before it: every element the edit did not touch keeps its (shared) stiffness
-    /// and mass; only added, changed and re-condensed elements get new ones. Equal to
+    /// of the grid before it: every element the grid did not condense again keeps its (shared)
+    /// stiffness and mass; only added and re-condensed elements get new ones. Equal to
     /// [`HexModel::from_grid`] of the edited grid, without re-reading and re-sharing every
     /// element's matrices ([`HexModel::update`] on a copy).
     #[must_use]
@@ -63,10 +63,11 @@ impl HexModel {
 
     /// Brings this model of the grid before an edit up to date with `grid` after it (`changes`
     /// being the edit's change list), in place: [`HexModel::from_grid`] of the edited grid, bit
-    /// for bit, but only the nodes and elements the edit added, changed or re-condensed are read
-    /// from the grid (their matrices shared among themselves), and only the lumped masses of the
-    /// nodes around them summed again. The others keep their data (stiffness included: the same
-    /// `Arc`) and move to their new indices. Returns how the indices moved.
+    /// for bit, but only the nodes and elements the edit added or changed are read from the grid
+    /// (matrices only where it condensed them again, shared among themselves), and only the
+    /// lumped masses of the nodes around them summed again. The others keep their data
+    /// (stiffness included: the same `Arc`) and move to their new indices. Returns how the
+    /// indices moved.
     ///
     /// # Panics
     /// Only on a broken grid invariant, or if `self` is not the model of the grid before the
@@ -92,6 +93,11 @@ impl HexModel {
             .copied()
             .collect();
         sorted(&mut touched);
+        // Of those, the ones whose matrices the grid computed again; the others (their nodes or
+        // neighbours changed) keep theirs.
+        let mut recondensed: Vec<u32> =
+            elements_new.iter().chain(&changes.matrices_updated).copied().collect();
+        sorted(&mut recondensed);
 
         // Nodes: the old ones without those removed, the new ones merged in by grid id (a new
         // node may reuse the id of one removed in the same edit). New nodes start massless; the
@@ -141,21 +147,33 @@ impl HexModel {
         let old_ids: Vec<u32> = self.elements.iter().map(|e| e.grid_id).collect();
         let mut dirty = vec![false; self.rest.len()];
         let mut shared = SharedMatrices::default();
-        let mut fresh_element = |id: u32, grid_node: &[u32], dirty: &mut [bool]| {
+        let mut new_matrices = Vec::new();
+        // Element `id` (to be at index `at`) read from the grid: its nodes, and its matrices
+        // unless it keeps `kept`.
+        let mut fresh_element = |id: u32,
+                                 at: usize,
+                                 kept: Option<HexElement>,
+                                 grid_node: &[u32],
+                                 dirty: &mut [bool]| {
             let e = grid.top().element(id).expect("a touched element is live");
-            let m = grid.matrices(id).expect("live element has matrices");
             let nodes = e.nodes.map(|n| index_of(grid_node, n));
             for &n in &nodes {
                 dirty[n as usize] = true;
             }
-            HexElement {
-                nodes,
-                stiffness: shared.get(m.stiffness.symmetrized()),
-                mass: m.mass,
-                grid_id: id,
+            match kept.filter(|_| recondensed.binary_search(&id).is_err()) {
+                Some(kept) => HexElement { nodes, ..kept },
+                None => {
+                    new_matrices.push(at as u32);
+                    let m = grid.matrices(id).expect("live element has matrices");
+                    HexElement {
+                        nodes,
+                        stiffness: shared.get(m.stiffness.symmetrized()),
+                        mass: m.mass,
+                        grid_id: id,
+                    }
+                }
             }
         };
-        let mut rebuilt = Vec::new();
         let lose_mass = |e: &HexElement, dirty: &mut [bool]| {
             for &n in &e.nodes {
                 if let Some(&k) = new_of_old.get(n as usize).filter(|&&k| k != u32::MAX) {
@@ -170,8 +188,7 @@ impl HexModel {
             for (i, e) in self.elements.iter_mut().enumerate() {
                 if touched.binary_search(&e.grid_id).is_ok() {
                     lose_mass(e, &mut dirty);
-                    rebuilt.push(i as u32);
-                    *e = fresh_element(e.grid_id, &self.grid_node, &mut dirty);
+                    *e = fresh_element(e.grid_id, i, Some(e.clone()), &self.grid_node, &mut dirty);
                 } else if renumbered {
                     for n in &mut e.nodes {
                         *n = new_of_old[*n as usize];
@@ -187,8 +204,8 @@ impl HexModel {
             let mut fresh = elements_new.iter().copied().peekable();
             for (j, mut e) in old.into_iter().enumerate() {
                 while let Some(id) = fresh.next_if(|&id| id < e.grid_id) {
-                    rebuilt.push(elements.len() as u32);
-                    elements.push(fresh_element(id, &self.grid_node, &mut dirty));
+                    let at = elements.len();
+                    elements.push(fresh_element(id, at, None, &self.grid_node, &mut dirty));
                     element_before.push(None);
                 }
                 let gone = elements_gone.binary_search(&e.grid_id).is_ok();
@@ -200,8 +217,8 @@ impl HexModel {
                     continue;
                 }
                 if again {
-                    rebuilt.push(elements.len() as u32);
-                    elements.push(fresh_element(e.grid_id, &self.grid_node, &mut dirty));
+                    let (id, at) = (e.grid_id, elements.len());
+                    elements.push(fresh_element(id, at, Some(e), &self.grid_node, &mut dirty));
                 } else {
                     for n in &mut e.nodes {
                         *n = new_of_old[*n as usize];
@@ -212,8 +229,8 @@ impl HexModel {
                 element_before.push(Some(j as u32));
             }
             for id in fresh {
-                rebuilt.push(elements.len() as u32);
-                elements.push(fresh_element(id, &self.grid_node, &mut dirty));
+                let at = elements.len();
+                elements.push(fresh_element(id, at, None, &self.grid_node, &mut dirty));
                 element_before.push(None);
             }
             self.elements = elements;
@@ -242,7 +259,7 @@ impl HexModel {
             grid_node_before,
             element_before,
             grid_id_before: old_ids,
-            rebuilt,
+            new_matrices,
         }
     }
 
@@ -372,9 +389,9 @@ pub struct Renumbering {
     pub element_before: Vec<Option<u32>>,
     /// The grid id of each element before the edit (sorted).
     pub grid_id_before: Vec<u32>,
-    /// The elements (updated indices) read from the grid again: added, changed or re-condensed;
-    /// sorted. The others kept their stiffness, mass and grid nodes.
-    pub rebuilt: Vec<u32>,
+    /// The elements (updated indices) whose matrices were read from the grid again: added and
+    /// re-condensed ones; sorted. The others kept their stiffness (the same `Arc`) and mass.
+    pub new_matrices: Vec<u32>,
 }
 
 impl Renumbering {

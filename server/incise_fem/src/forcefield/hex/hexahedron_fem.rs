@@ -229,9 +229,9 @@ impl HexForceField {
     }
 
     /// [`HexForceField::remapped`] in place, for `model` brought through an edit by
-    /// [`HexModel::update`] (`renumbering`, what it returned): the elements it kept keep their
-    /// permuted matrices, rotation and rotation gradients; only the elements it rebuilt are
-    /// prepared again, a new one starting from the rotation of the element it split from
+    /// [`HexModel::update`] (`renumbering`, what it returned): the elements that kept their
+    /// matrices keep their permuted matrices, rotation and rotation gradients; only those with
+    /// new matrices are prepared again, a new one starting from the rotation of the element it split from
     /// (`origin(grid_id)`, a grid id before the edit) or else of the element that had its id.
     pub fn remap(
         &mut self,
@@ -253,7 +253,7 @@ impl HexForceField {
             && renumbering.element_before.iter().enumerate().all(|(i, &b)| b == Some(i as u32));
         if kept_all {
             // No element added or removed: none has an origin, and each keeps its rotation.
-            for &i in &renumbering.rebuilt {
+            for &i in &renumbering.new_matrices {
                 let i = i as usize;
                 (self.stiffness[i], self.walsh[i], self.off_centre[i]) =
                     prepared(&model.elements[i]);
@@ -264,7 +264,7 @@ impl HexForceField {
         let stiffness = std::mem::take(&mut self.stiffness);
         let walsh = std::mem::take(&mut self.walsh);
         let off_centre = std::mem::take(&mut self.off_centre);
-        let mut rebuilt = renumbering.rebuilt.iter().copied().peekable();
+        let mut rebuilt = renumbering.new_matrices.iter().copied().peekable();
         for (i, el) in model.elements.iter().enumerate() {
             let again = rebuilt.next_if_eq(&(i as u32)).is_some();
             match renumbering.element_before[i] {

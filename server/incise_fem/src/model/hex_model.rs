@@ -160,17 +160,16 @@ impl HexModel {
             for &n in &nodes {
                 dirty[n as usize] = true;
             }
-            match kept.filter(|_| recondensed.binary_search(&id).is_err()) {
-                Some(kept) => HexElement { nodes, ..kept },
-                None => {
-                    new_matrices.push(at as u32);
-                    let m = grid.matrices(id).expect("live element has matrices");
-                    HexElement {
-                        nodes,
-                        stiffness: shared.get(m.stiffness.symmetrized()),
-                        mass: m.mass,
-                        grid_id: id,
-                    }
+            if let Some(kept) = kept.filter(|_| recondensed.binary_search(&id).is_err()) {
+                HexElement { nodes, ..kept }
+            } else {
+                new_matrices.push(at as u32);
+                let m = grid.matrices(id).expect("live element has matrices");
+                HexElement {
+                    nodes,
+                    stiffness: shared.get(m.stiffness.symmetrized()),
+                    mass: m.mass,
+                    grid_id: id,
                 }
             }
         };

@@ -231,8 +231,9 @@ impl HexForceField {
     /// [`HexForceField::remapped`] in place, for `model` brought through an edit by
     /// [`HexModel::update`] (`renumbering`, what it returned): the elements that kept their
     /// matrices keep their permuted matrices, rotation and rotation gradients; only those with
-    /// new matrices are prepared again, a new one starting from the rotation of the element it split from
-    /// (`origin(grid_id)`, a grid id before the edit) or else of the element that had its id.
+    /// new matrices are prepared again, a new element starting from the rotation of the element
+    /// it split from (`origin(grid_id)`, a grid id before the edit) or else of the element that
+    /// had its id.
     pub fn remap(
         &mut self,
         model: &HexModel,
@@ -264,9 +265,9 @@ impl HexForceField {
         let stiffness = std::mem::take(&mut self.stiffness);
         let walsh = std::mem::take(&mut self.walsh);
         let off_centre = std::mem::take(&mut self.off_centre);
-        let mut rebuilt = renumbering.new_matrices.iter().copied().peekable();
+        let mut fresh = renumbering.new_matrices.iter().copied().peekable();
         for (i, el) in model.elements.iter().enumerate() {
-            let again = rebuilt.next_if_eq(&(i as u32)).is_some();
+            let again = fresh.next_if_eq(&(i as u32)).is_some();
             match renumbering.element_before[i] {
                 Some(j) if !again => {
                     let j = j as usize;

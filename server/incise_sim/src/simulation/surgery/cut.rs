@@ -105,11 +105,11 @@ impl DeformedGrid<'_> {
         // centre); the margin, far above the rounding of the tool's transforms, keeps a centre
         // that `keep` takes on the box's boundary.
         let margin = 1e-6 * self.voxel();
-        let (a, b): (Vec3, Vec3) = (
+        let (box_lo, box_hi): (Vec3, Vec3) = (
             std::array::from_fn(|k| lo[k] - reach - margin),
             std::array::from_fn(|k| hi[k] + reach + margin),
         );
-        let in_box = |c: &Vec3| (0..3).all(|k| c[k] >= a[k] && c[k] <= b[k]);
+        let in_box = |c: &Vec3| (0..3).all(|k| c[k] >= box_lo[k] && c[k] <= box_hi[k]);
         let mut out = Vec::new();
         let mut voxels = Vec::new();
         for (id, element) in self.grid.top().elements() {

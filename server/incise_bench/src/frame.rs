@@ -86,6 +86,9 @@ struct Report {
     pressed_without_cutting: bool,
     /// Frames whose state was not finite (0 expected).
     non_finite_frames: usize,
+    /// Every frame's state hash and surface change folded into one: equal for two builds that
+    /// ran the script bit for bit alike (an A/B comparison's check that only the time moved).
+    fingerprint: String,
     gpu: &'static str,
     gpu_cpu_max_diff: Option<f64>,
 }
@@ -444,9 +447,28 @@ fn summarise(
             .iter()
             .filter(|(_, f)| !f.positions.iter().flatten().all(|c| c.is_finite()))
             .count(),
+        fingerprint: format!("{:016x}", fingerprint(frames.iter().map(|(_, f)| f))),
         gpu: "none",
         gpu_cpu_max_diff: None,
     }
+}
+
+/// FNV-1a over each frame's state hash, voxels removed and surface triangles added and removed.
+fn fingerprint<'a>(frames: impl Iterator<Item = &'a Frame>) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for f in frames {
+        let surface = &f.surgical.surface;
+        let words = [f.state_hash, f.counters.voxels_removed as u64].into_iter().chain(
+            surface.triangles_added.iter().chain(&surface.triangles_removed).map(|&t| u64::from(t)),
+        );
+        for w in words {
+            for b in w.to_le_bytes() {
+                h ^= u64::from(b);
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+    }
+    h
 }
 
 fn print_report(r: &Report) {
@@ -476,12 +498,13 @@ fn print_report(r: &Report) {
         r.cut_stroke_batch_ms.map_or("-".into(), |t| format!("{t:.3} ms"))
     );
     println!(
-        "removed {} voxels, {} tetrahedra; surface {} triangles; tool force up to {:.3} N; pressed without cutting: {}; non-finite frames: {}",
+        "removed {} voxels, {} tetrahedra; surface {} triangles; tool force up to {:.3} N; pressed without cutting: {}; non-finite frames: {}; fingerprint {}",
         r.voxels_removed,
         r.tets_removed,
         r.triangles,
         r.tool_force_max_n,
         r.pressed_without_cutting,
-        r.non_finite_frames
+        r.non_finite_frames,
+        r.fingerprint
     );
 }

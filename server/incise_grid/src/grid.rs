@@ -366,11 +366,17 @@ impl BranchedGrid {
     #[must_use]
     pub fn element_voxels(&self, id: u32) -> Vec<u32> {
         let mut out = Vec::new();
+        self.element_voxels_into(id, &mut out);
+        out
+    }
+
+    /// [`BranchedGrid::element_voxels`] appended to `out` (a buffer kept by a caller that asks
+    /// for many elements).
+    pub fn element_voxels_into(&self, id: u32, out: &mut Vec<u32>) {
         let top = self.levels.len() - 1;
         if let Some(e) = self.levels[top].element(id) {
-            self.collect_voxels(top, e, &mut out);
+            self.collect_voxels(top, e, out);
         }
-        out
     }
 
     fn collect_voxels(&self, level_index: usize, e: &crate::topology::Element, out: &mut Vec<u32>) {

@@ -142,6 +142,15 @@ impl FineLevel {
         axis.is_some_and(|axis| self.severed[lo as usize] & (1 << axis) != 0)
     }
 
+    /// True when the link between voxel `v` and its `+axis` face neighbour is severed:
+    /// [`FineLevel::is_severed`] for a pair whose axis the caller knows, without finding it
+    /// from both voxels' coordinates (the re-meshing and the cut search ask this in their
+    /// innermost loops).
+    #[must_use]
+    pub fn is_severed_along(&self, v: u32, axis: usize) -> bool {
+        self.severed[v as usize] & (1 << axis) != 0
+    }
+
     /// The axis along which `hi` is the `+axis` face neighbour of `lo`, if it is one.
     pub(crate) fn link_axis(&self, lo: u32, hi: u32) -> Option<u32> {
         let d = self.dims;

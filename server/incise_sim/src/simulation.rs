@@ -620,7 +620,7 @@ impl Simulation {
     /// topology change: surviving nodes keep position and velocity; a node split off another takes
     /// that node's; any other new node takes its element's mean displacement and velocity.
     /// Surviving and split-off elements keep their rotation; elements the edit did not touch keep
-    /// their matrices ([`HexModel::updated`]); the implicit solver's warm start follows the nodes.
+    /// their matrices ([`HexModel::update`]); the implicit solver's warm start follows the nodes.
     /// Fixed regions and patch loads are re-applied to the new nodes.
     ///
     /// In a tensor-mass scene there is no grid: the tetrahedra of every cell holding a removed
@@ -651,15 +651,17 @@ impl Simulation {
         if changes == GridChanges::default() {
             return Ok(changes);
         }
-        let model = hex.model.updated(&hex.grid, &changes);
-        let old = &hex.model;
-        let incise_fem::model::CarriedState { mut state, old_of_new } =
-            self.state.across_cut(old, &model, &changes);
-        let origin_of: std::collections::BTreeMap<u32, u32> =
-            changes.top.elements_added.iter().filter_map(|&(id, o)| o.map(|o| (id, o))).collect();
-        hex.force_field = hex.force_field.remapped(old, &model, |g| origin_of.get(&g).copied());
-        self.fixed = fixed_nodes(&self.config, &hex.grid, &model);
-        for (i, s) in state.v.iter_mut().enumerate() {
+        // In place: a cut touches a few elements, and copying the model, state and field cost
+        // more than updating what it touched.
+        let renumbering = hex.model.update(&hex.grid, &changes);
+        let model = &hex.model;
+        let old_of_new = self.state.carry(model, &renumbering, &changes);
+        let added = &changes.top.elements_added;
+        hex.force_field.remap(model, &renumbering, |g| {
+            added.iter().find(|&&(id, _)| id == g).and_then(|&(_, origin)| origin)
+        });
+        self.fixed = fixed_nodes(&self.config, &hex.grid, model);
+        for (i, s) in self.state.v.iter_mut().enumerate() {
             if self.fixed.is_fixed(i) {
                 *s = [0.0; 3];
             }
@@ -674,13 +676,11 @@ impl Simulation {
             // needs. The estimate is a power iteration, paid once per cut; the explicit
             // integrator is for comparisons and CFL studies, interactive cutting runs implicit.
             HexStepper::Explicit { dt, stable_dt: limit, substeps, .. } => {
-                *limit = stable_dt(&model, &hex.force_field, &self.fixed);
+                *limit = stable_dt(model, &hex.force_field, &self.fixed);
                 *substeps = (*dt / *limit).ceil().max(1.0) as usize;
             }
             HexStepper::Static { .. } => {}
         }
-        hex.model = model;
-        self.state = state;
         Ok(changes)
     }
 

@@ -60,7 +60,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 time(|| Surface::extract(grid.fine(), grid.spacing(), &options));
             let node = |n: u32| n;
             let (t_embed, mapping) = time(|| SurfaceMapping::embed(&surface, &grid, &node));
-            let edit = GridEdit { remove_voxels: stroke(&grid, 500), sever_links: vec![] };
+            // Sorted, as the simulation passes them.
+            let mut voxels = stroke(&grid, 500);
+            voxels.sort_unstable();
+            let edit = GridEdit { remove_voxels: voxels, sever_links: vec![] };
             // Each run cuts fresh copies; only the cut itself is timed.
             let (mut t_grid, mut t_remesh, mut t_update) = (Vec::new(), Vec::new(), Vec::new());
             let (mut changes, mut count) = (None, 0);
@@ -73,7 +76,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let c = s.remesh(g.fine(), &edit.remove_voxels);
                 t_remesh.push(t.elapsed().as_secs_f64() * 1e3);
                 let t = Instant::now();
-                count = m.update(&s, &g, &changed_elements(&grid_changes), &c, &node);
+                count = m.update_by_grid_node(&s, &g, &changed_elements(&grid_changes), &c);
                 t_update.push(t.elapsed().as_secs_f64() * 1e3);
                 changes = Some(c);
             }

@@ -110,6 +110,22 @@ pub(crate) struct CubeMesh {
     pub front_edges: [Option<(u8, u8)>; 6],
 }
 
+/// The surface of the cube whose inside corners are the bits of `inside`, no edge severed: what
+/// removing voxels makes, looked up instead of traced (tracing the loops was most of a cube's
+/// cost in re-meshing a cut).
+pub(crate) fn intact_cube(inside: u8) -> &'static CubeMesh {
+    static TABLE: std::sync::OnceLock<Vec<CubeMesh>> = std::sync::OnceLock::new();
+    &TABLE.get_or_init(|| {
+        (0..=u8::MAX)
+            .map(|inside| {
+                let mut mesh = CubeMesh::default();
+                mesh_cube(CubeConfig { inside, severed: 0 }, &mut mesh);
+                mesh
+            })
+            .collect()
+    })[usize::from(inside)]
+}
+
 /// Builds the loops and triangles of one cube into `out` (cleared first).
 pub(crate) fn mesh_cube(config: CubeConfig, out: &mut CubeMesh) {
     out.triangles.clear();

@@ -19,10 +19,11 @@
 //! Each group gets its own closed surface and its own vertices; two groups touching give two
 //! coincident surfaces at their interface, one per side.
 
-use crate::contour::{CubeConfig, CubeMesh, FRONT, mesh_cube};
+use crate::contour::{CubeConfig, CubeMesh, FRONT, intact_cube, mesh_cube};
 use incise_grid::topology::FineLevel;
 use incise_math::Vec3;
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
+use std::hash::{BuildHasherDefault, Hasher};
 
 /// Which materials form one closed surface.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -108,11 +109,63 @@ pub struct Surface {
     pub(crate) triangles: Vec<Triangle>,
     pub(crate) free_triangles: BTreeSet<u32>,
     pub(crate) live_triangles: usize,
-    /// Vertex id by (voxel, group, face): ordered by voxel so a voxel's vertices are one range.
-    pub(crate) vertex_ids: BTreeMap<(u32, u16, u8), u32>,
+    /// Vertex id by (voxel, group, face). Hashed, not ordered: re-meshing looks up three keys
+    /// per triangle, and a tree of the liver's 50,000 vertices made that most of a cut's
+    /// re-meshing. Never iterated, so its order cannot leak into ids.
+    pub(crate) vertex_ids: HashMap<(u32, u16, u8), u32, FastHash>,
     /// Triangle ids of each cube holding any, in the order the cube made them.
-    pub(crate) cube_triangles: HashMap<u32, Vec<u32>>,
+    pub(crate) cube_triangles: HashMap<u32, Vec<u32>, FastHash>,
 }
+
+/// Face codes a vertex can have (module doc).
+const FACE_CODES: u8 = 18;
+
+/// The multiply-add hash of `rustc-hash` for the small integer keys of the maps above: the
+/// standard library's `SipHash` spends more on them than the rest of a look-up.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct KeyHasher(u64);
+
+impl KeyHasher {
+    fn add(&mut self, x: u64) {
+        self.0 = self.0.wrapping_add(x).wrapping_mul(0xf135_7aea_2e62_a9c5);
+    }
+}
+
+impl Hasher for KeyHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.add(u64::from(b));
+        }
+    }
+
+    fn write_u8(&mut self, x: u8) {
+        self.add(u64::from(x));
+    }
+
+    fn write_u16(&mut self, x: u16) {
+        self.add(u64::from(x));
+    }
+
+    fn write_u32(&mut self, x: u32) {
+        self.add(u64::from(x));
+    }
+
+    fn write_u64(&mut self, x: u64) {
+        self.add(x);
+    }
+
+    fn write_usize(&mut self, x: usize) {
+        self.add(x as u64);
+    }
+
+    fn finish(&self) -> u64 {
+        // The multiply leaves the entropy in the high bits; the table indexes by the low ones.
+        self.0.rotate_left(26)
+    }
+}
+
+/// Builds [`KeyHasher`]s.
+pub(crate) type FastHash = BuildHasherDefault<KeyHasher>;
 
 /// Reusable buffers for meshing cubes.
 #[derive(Default)]
@@ -154,8 +207,8 @@ impl Surface {
             triangles: Vec::new(),
             free_triangles: BTreeSet::new(),
             live_triangles: 0,
-            vertex_ids: BTreeMap::new(),
-            cube_triangles: HashMap::new(),
+            vertex_ids: HashMap::default(),
+            cube_triangles: HashMap::default(),
         };
         let mut scratch = CubeScratch::default();
         let mut added = Vec::new();
@@ -167,6 +220,14 @@ impl Surface {
             }
             scratch.out = out;
         }
+        // Room for the vertices and triangles of a few cuts: growing a full vector or map moves
+        // every entry, and that would fall on one cut's re-meshing.
+        let room = |n: usize| n / 8 + 64;
+        s.vertices.reserve(room(s.vertices.len()));
+        s.uses.reserve(room(s.uses.len()));
+        s.triangles.reserve(room(s.triangles.len()));
+        s.vertex_ids.reserve(room(s.vertex_ids.len()));
+        s.cube_triangles.reserve(room(s.cube_triangles.len()));
         s
     }
 
@@ -231,7 +292,10 @@ impl Surface {
 
     /// The live vertices owned by `voxel`, in key order.
     pub fn vertices_of_voxel(&self, voxel: u32) -> impl Iterator<Item = u32> + '_ {
-        self.vertex_ids.range((voxel, 0, 0)..=(voxel, u16::MAX, u8::MAX)).map(|(_, &id)| id)
+        let groups = self.inside.len() as u16;
+        (0..groups)
+            .flat_map(move |g| (0..FACE_CODES).map(move |f| (voxel, g, f)))
+            .filter_map(|key| self.vertex_ids.get(&key).copied())
     }
 
     /// The triangle ids of cube `cube` (padded linear index, module doc).
@@ -386,9 +450,10 @@ impl Surface {
                 for a in 0..3u8 {
                     let n = c | (1 << a);
                     if n != c && inside & (1 << c) != 0 && inside & (1 << n) != 0 {
+                        // Corner `n` is corner `c`'s `+a` neighbour.
                         let (p, q) = (voxel[c as usize], voxel[n as usize]);
-                        if let (Some(p), Some(q)) = (p, q)
-                            && fine.is_severed(p, q)
+                        if let (Some(p), Some(_)) = (p, q)
+                            && fine.is_severed_along(p, usize::from(a))
                         {
                             severed |= 1 << (3 * u32::from(c) + u32::from(a));
                         }
@@ -398,7 +463,12 @@ impl Surface {
             if inside == u8::MAX && severed == 0 {
                 continue;
             }
-            mesh_cube(CubeConfig { inside, severed }, &mut scratch.mesh);
+            let mesh = if severed == 0 {
+                intact_cube(inside)
+            } else {
+                mesh_cube(CubeConfig { inside, severed }, &mut scratch.mesh);
+                &scratch.mesh
+            };
             let group = g as u16;
             let key = |local: u8| -> VertexKey {
                 if local < FRONT {
@@ -408,8 +478,7 @@ impl Surface {
                     VertexKey { group, voxel: owner, face: 2 * a + negative }
                 } else {
                     let f = local - FRONT;
-                    let (lo, a) =
-                        scratch.mesh.front_edges[f as usize].expect("front edge recorded");
+                    let (lo, a) = mesh.front_edges[f as usize].expect("front edge recorded");
                     let normal = f / 2;
                     let across = 3 - a - normal;
                     let negative = (lo >> across) & 1;
@@ -418,7 +487,7 @@ impl Surface {
                     VertexKey { group, voxel: owner, face: 6 + 4 * a + 2 * j + negative }
                 }
             };
-            for t in &scratch.mesh.triangles {
+            for t in &mesh.triangles {
                 scratch.out.push((group, t.map(key)));
             }
         }

@@ -29,6 +29,12 @@ pub struct SurfaceMapping {
     /// can be looked up again when its numbering moves.
     grid_nodes: Vec<[u32; 8]>,
     live: Vec<bool>,
+    /// The top-level cell each live vertex's element fills (`u32::MAX`: none), and the live
+    /// vertices of each cell, sorted: a cut finds the vertices of the elements it changed from
+    /// their cells instead of walking the elements' voxels (512 per element at level 3, each a
+    /// look-up in the surface's vertex map). A vertex's voxel, so its cell, never changes.
+    cell: Vec<u32>,
+    cell_vertices: Vec<Vec<u32>>,
 }
 
 /// The top-level elements whose vertices need new embeddings after `changes`: those added
@@ -59,14 +65,24 @@ impl SurfaceMapping {
     #[must_use]
     pub fn embed(surface: &Surface, grid: &BranchedGrid, node_index: &dyn Fn(u32) -> u32) -> Self {
         let vertices = surface.vertices();
+        let n = vertices.len();
         let mut m = Self {
-            embeddings: vec![Embedding::default(); vertices.len()],
-            grid_nodes: vec![[0; 8]; vertices.len()],
-            live: vertices.iter().map(|v| v.alive).collect(),
+            embeddings: with_room_of(n, Embedding::default()),
+            grid_nodes: with_room_of(n, [0; 8]),
+            live: with_room_of(n, false),
+            cell: with_room_of(n, u32::MAX),
+            cell_vertices: vec![Vec::new(); cell_count(grid)],
         };
+        for (live, v) in m.live.iter_mut().zip(vertices) {
+            *live = v.alive;
+        }
         for (i, v) in vertices.iter().enumerate() {
             if v.alive {
-                (m.embeddings[i], m.grid_nodes[i]) = embed_vertex(v, grid, node_index);
+                let cell;
+                (m.embeddings[i], m.grid_nodes[i], cell) = embed_vertex(v, grid, node_index);
+                m.cell[i] = cell;
+                // Slots in id order: each list comes out sorted.
+                m.cell_vertices[cell as usize].push(i as u32);
             }
         }
         m
@@ -87,6 +103,8 @@ impl SurfaceMapping {
             embeddings,
             grid_nodes: (0..vertex_count as u32).map(|i| [i; 8]).collect(),
             live: vec![true; vertex_count],
+            cell: vec![u32::MAX; vertex_count],
+            cell_vertices: Vec::new(),
         }
     }
 
@@ -109,36 +127,132 @@ impl SurfaceMapping {
         surface_changes: &SurfaceChanges,
         node_index: &dyn Fn(u32) -> u32,
     ) -> usize {
+        self.update_with(surface, grid, changed_elements, surface_changes, Some(node_index))
+    }
+
+    /// [`SurfaceMapping::update`] for a mapping whose node indices are the top-level grid node
+    /// ids themselves (embedded with `&|g| g`): a grid node keeps its id across a cut, so the
+    /// vertices that are not re-embedded are not visited at all.
+    ///
+    /// # Panics
+    /// As [`SurfaceMapping::embed`].
+    pub fn update_by_grid_node(
+        &mut self,
+        surface: &Surface,
+        grid: &BranchedGrid,
+        changed_elements: &[u32],
+        surface_changes: &SurfaceChanges,
+    ) -> usize {
+        self.update_with(surface, grid, changed_elements, surface_changes, None)
+    }
+
+    /// [`SurfaceMapping::update`]; `node_index` `None` for grid node ids.
+    fn update_with(
+        &mut self,
+        surface: &Surface,
+        grid: &BranchedGrid,
+        changed_elements: &[u32],
+        surface_changes: &SurfaceChanges,
+        node_index: Option<&dyn Fn(u32) -> u32>,
+    ) -> usize {
         let vertices = surface.vertices();
         self.embeddings.resize(vertices.len(), Embedding::default());
         self.grid_nodes.resize(vertices.len(), [0; 8]);
         self.live.resize(vertices.len(), false);
+        self.cell.resize(vertices.len(), u32::MAX);
+        if self.cell_vertices.len() != cell_count(grid) {
+            self.index_cells(surface, grid);
+        }
         for &v in &surface_changes.vertices_removed {
             self.embeddings[v as usize] = Embedding::default();
             self.live[v as usize] = false;
+            self.leave_cell(v);
         }
-        for (e, (g, &live)) in
-            self.embeddings.iter_mut().zip(self.grid_nodes.iter().zip(&self.live))
-        {
-            if live {
-                e.nodes = g.map(node_index);
+        if let Some(node_index) = node_index {
+            for (e, (g, &live)) in
+                self.embeddings.iter_mut().zip(self.grid_nodes.iter().zip(&self.live))
+            {
+                if live {
+                    e.nodes = g.map(node_index);
+                }
             }
         }
+        let sorted;
+        let changed_elements = if changed_elements.is_sorted() {
+            changed_elements
+        } else {
+            sorted = {
+                let mut c = changed_elements.to_vec();
+                c.sort_unstable();
+                c
+            };
+            &sorted
+        };
         let mut todo: Vec<u32> = surface_changes.vertices_added.clone();
-        for &e in changed_elements {
-            for voxel in grid.element_voxels(e) {
-                todo.extend(surface.vertices_of_voxel(voxel));
+        let top = grid.top();
+        let mut cells: Vec<u32> =
+            changed_elements.iter().filter_map(|&e| top.element(e)).map(|e| e.cell).collect();
+        cells.sort_unstable();
+        cells.dedup();
+        for cell in cells {
+            let in_cell = &self.cell_vertices[cell as usize];
+            if let [only] = top.cell_elements(cell) {
+                // Every voxel of the cell holding material is the one element's.
+                if changed_elements.binary_search(only).is_ok() {
+                    todo.extend_from_slice(in_cell);
+                }
+            } else {
+                todo.extend(in_cell.iter().copied().filter(|&v| {
+                    grid.voxel_element(vertices[v as usize].voxel)
+                        .is_some_and(|e| changed_elements.binary_search(&e).is_ok())
+                }));
             }
         }
         todo.sort_unstable();
         todo.dedup();
         todo.retain(|&v| vertices[v as usize].alive);
+        let identity = |g: u32| g;
+        let node_index = node_index.unwrap_or(&identity);
         for &v in &todo {
             let i = v as usize;
-            (self.embeddings[i], self.grid_nodes[i]) = embed_vertex(&vertices[i], grid, node_index);
+            let cell;
+            (self.embeddings[i], self.grid_nodes[i], cell) =
+                embed_vertex(&vertices[i], grid, node_index);
             self.live[i] = true;
+            if self.cell[i] != cell {
+                self.leave_cell(v);
+                self.cell[i] = cell;
+                let list = &mut self.cell_vertices[cell as usize];
+                let at = list.partition_point(|&w| w < v);
+                list.insert(at, v);
+            }
         }
         todo.len()
+    }
+
+    /// Files every live vertex under its cell (a mapping made by [`SurfaceMapping::identity`],
+    /// or one from another grid, has no cells yet).
+    fn index_cells(&mut self, surface: &Surface, grid: &BranchedGrid) {
+        self.cell_vertices = vec![Vec::new(); cell_count(grid)];
+        self.cell.fill(u32::MAX);
+        for (i, v) in surface.vertices().iter().enumerate() {
+            if self.live[i]
+                && let Some(e) = grid.voxel_element(v.voxel).and_then(|e| grid.top().element(e))
+            {
+                self.cell[i] = e.cell;
+                self.cell_vertices[e.cell as usize].push(i as u32);
+            }
+        }
+    }
+
+    /// Takes vertex `v` off its cell's list.
+    fn leave_cell(&mut self, v: u32) {
+        let cell = std::mem::replace(&mut self.cell[v as usize], u32::MAX);
+        if let Some(list) = self.cell_vertices.get_mut(cell as usize)
+            && let Ok(at) = list.binary_search(&v)
+        {
+            list.remove(at);
+        }
     }
 
     /// The embedding of vertex slot `vertex`.
@@ -191,12 +305,25 @@ impl SurfaceMapping {
     }
 }
 
-/// The embedding of one live vertex, with the grid node ids behind it.
+/// `n` copies of `fill`, with room for a few cuts' new vertices (growing a full vector would
+/// copy every slot on one cut).
+fn with_room_of<T: Clone>(n: usize, fill: T) -> Vec<T> {
+    let mut v = Vec::with_capacity(n + n / 8 + 64);
+    v.resize(n, fill);
+    v
+}
+
+/// Cells of `grid`'s top level.
+fn cell_count(grid: &BranchedGrid) -> usize {
+    grid.top().cell_dims().iter().map(|&d| d as usize).product()
+}
+
+/// The embedding of one live vertex, with the grid node ids behind it and its element's cell.
 fn embed_vertex(
     v: &SurfaceVertex,
     grid: &BranchedGrid,
     node_index: &dyn Fn(u32) -> u32,
-) -> (Embedding, [u32; 8]) {
+) -> (Embedding, [u32; 8], u32) {
     let id = grid
         .voxel_element(v.voxel)
         .unwrap_or_else(|| panic!("voxel {} owns a surface vertex but is empty", v.voxel));
@@ -209,5 +336,5 @@ fn embed_vertex(
         nodes: e.nodes.map(node_index),
         weights: std::array::from_fn(|n| hex8::shape(n, xi)),
     };
-    (embedding, e.nodes)
+    (embedding, e.nodes, e.cell)
 }

@@ -119,6 +119,8 @@ fn a_cut_re_embeds_only_the_vertices_of_changed_elements() {
     let mut grid = grid_of(&sphere(16, H), 1, 2);
     let mut s = Surface::extract(grid.fine(), grid.spacing(), &o);
     let mut m = SurfaceMapping::embed(&s, &grid, &numbering(&grid));
+    // The same vertices numbered by grid node id, as the simulation embeds them.
+    let mut by_id = SurfaceMapping::embed(&s, &grid, &|g| g);
     let d = grid.fine().dims();
     let bottom: Vec<u32> = (0..d[0] * d[1] * 4).collect();
     let edits = [
@@ -147,12 +149,32 @@ fn a_cut_re_embeds_only_the_vertices_of_changed_elements() {
         let count = m.update(&s, &grid, &changed_elements(&grid_changes), &changes, &index);
         println!("re-embedded {count} of {} vertices", s.vertex_count());
         assert!(count > 0 && count < s.vertex_count(), "{count} of {}", s.vertex_count());
+        let by_id_count =
+            by_id.update_by_grid_node(&s, &grid, &changed_elements(&grid_changes), &changes);
+        assert_eq!(by_id_count, count);
         let fresh = SurfaceMapping::embed(&s, &grid, &index);
+        let fresh_by_id = SurfaceMapping::embed(&s, &grid, &|g| g);
         for (i, v) in s.vertices().iter().enumerate() {
             if v.alive {
                 assert_eq!(m.embedding(i as u32), fresh.embedding(i as u32), "vertex {i}");
+                assert_eq!(
+                    by_id.embedding(i as u32),
+                    fresh_by_id.embedding(i as u32),
+                    "vertex {i}"
+                );
             }
         }
+        // The vertices re-embedded are those of the changed elements' voxels and the new ones.
+        let mut want: Vec<u32> = changes.vertices_added.clone();
+        for e in changed_elements(&grid_changes) {
+            for voxel in grid.element_voxels(e) {
+                want.extend(s.vertices_of_voxel(voxel));
+            }
+        }
+        want.sort_unstable();
+        want.dedup();
+        want.retain(|&v| s.vertices()[v as usize].alive);
+        assert_eq!(count, want.len());
         let (mut a, mut b) = (Vec::new(), Vec::new());
         m.deformed(&rest_nodes(&grid), &mut a);
         fresh.deformed(&rest_nodes(&grid), &mut b);

@@ -46,39 +46,224 @@ impl HexModel {
     /// Only on a broken grid invariant (a live element without matrices or with a dead node).
     #[must_use]
     pub fn from_grid(grid: &BranchedGrid) -> Self {
-        Self::build(grid, |_| None)
+        Self::build(grid)
     }
 
     /// The model of `grid` after an edit whose change list is `changes`, `self` being the model
-    /// of the grid before it: every element the edit did not touch keeps its (shared) stiffness
-    /// and mass; only added, changed and re-condensed elements get new ones. Equal to
+    /// of the grid before it: every element the grid did not condense again keeps its (shared)
+    /// stiffness and mass; only added and re-condensed elements get new ones. Equal to
     /// [`HexModel::from_grid`] of the edited grid, without re-reading and re-sharing every
-    /// element's matrices.
+    /// element's matrices ([`HexModel::update`] on a copy).
     #[must_use]
     pub fn updated(&self, grid: &BranchedGrid, changes: &GridChanges) -> Self {
-        let mut touched: Vec<u32> = changes
-            .top
-            .elements_added
-            .iter()
-            .map(|&(id, _)| id)
-            .chain(changes.top.elements_changed.iter().copied())
-            .chain(changes.matrices_updated.iter().copied())
-            .collect();
-        touched.sort_unstable();
-        touched.dedup();
-        // Old elements are in grid-element order, so their ids are sorted.
-        let old = &self.elements;
-        Self::build(grid, |id| {
-            if touched.binary_search(&id).is_ok() {
-                return None;
-            }
-            let j = old.binary_search_by_key(&id, |e| e.grid_id).ok()?;
-            Some((old[j].stiffness.clone(), old[j].mass))
-        })
+        let mut model = self.clone();
+        model.update(grid, changes);
+        model
     }
 
-    /// The model of `grid`, taking an element's matrices from `reuse(grid id)` when it has them.
-    fn build(grid: &BranchedGrid, reuse: impl Fn(u32) -> Option<(Arc<Mat24>, Mat8)>) -> Self {
+    /// Brings this model of the grid before an edit up to date with `grid` after it (`changes`
+    /// being the edit's change list), in place: [`HexModel::from_grid`] of the edited grid, bit
+    /// for bit, but only the nodes and elements the edit added or changed are read from the grid
+    /// (matrices only where it condensed them again, shared among themselves), and only the
+    /// lumped masses of the nodes around them summed again. The others keep their data
+    /// (stiffness included: the same `Arc`) and move to their new indices. Returns how the
+    /// indices moved.
+    ///
+    /// # Panics
+    /// Only on a broken grid invariant, or if `self` is not the model of the grid before the
+    /// edit.
+    pub fn update(&mut self, grid: &BranchedGrid, changes: &GridChanges) -> Renumbering {
+        let top = &changes.top;
+        let sorted = |ids: &mut Vec<u32>| {
+            ids.sort_unstable();
+            ids.dedup();
+        };
+        let mut nodes_gone = top.nodes_removed.clone();
+        sorted(&mut nodes_gone);
+        let mut nodes_new: Vec<u32> = top.nodes_added.iter().map(|&(id, _)| id).collect();
+        sorted(&mut nodes_new);
+        let mut elements_gone = top.elements_removed.clone();
+        sorted(&mut elements_gone);
+        let mut elements_new: Vec<u32> = top.elements_added.iter().map(|&(id, _)| id).collect();
+        sorted(&mut elements_new);
+        let mut touched: Vec<u32> = elements_new
+            .iter()
+            .chain(&top.elements_changed)
+            .chain(&changes.matrices_updated)
+            .copied()
+            .collect();
+        sorted(&mut touched);
+        // Of those, the ones whose matrices the grid computed again; the others (their nodes or
+        // neighbours changed) keep theirs.
+        let mut recondensed: Vec<u32> =
+            elements_new.iter().chain(&changes.matrices_updated).copied().collect();
+        sorted(&mut recondensed);
+
+        // Nodes: the old ones without those removed, the new ones merged in by grid id (a new
+        // node may reuse the id of one removed in the same edit). New nodes start massless; the
+        // elements around them are touched, so their masses are summed below.
+        let grid_node_before = self.grid_node.clone();
+        let old_count = grid_node_before.len();
+        let (node_before, new_of_old) = if nodes_gone.is_empty() && nodes_new.is_empty() {
+            ((0..old_count as u32).map(Some).collect(), (0..old_count as u32).collect())
+        } else {
+            let mut merged: Vec<(u32, Option<u32>)> =
+                Vec::with_capacity(old_count + nodes_new.len());
+            let mut fresh = nodes_new.iter().copied().peekable();
+            for (j, &g) in grid_node_before.iter().enumerate() {
+                while let Some(id) = fresh.next_if(|&id| id < g) {
+                    merged.push((id, None));
+                }
+                if nodes_gone.binary_search(&g).is_err() {
+                    merged.push((g, Some(j as u32)));
+                }
+            }
+            merged.extend(fresh.map(|id| (id, None)));
+            let mut new_of_old = vec![u32::MAX; old_count];
+            let (mut rest, mut lumped) =
+                (Vec::with_capacity(merged.len()), Vec::with_capacity(merged.len()));
+            for (k, &(id, before)) in merged.iter().enumerate() {
+                if let Some(j) = before {
+                    new_of_old[j as usize] = k as u32;
+                    rest.push(self.rest[j as usize]);
+                    lumped.push(self.lumped_mass[j as usize]);
+                } else {
+                    rest.push(grid.node_rest_position(id).expect("an added node is live"));
+                    lumped.push(0.0);
+                }
+            }
+            self.grid_node = merged.iter().map(|&(id, _)| id).collect();
+            (self.rest, self.lumped_mass) = (rest, lumped);
+            (merged.into_iter().map(|(_, before)| before).collect(), new_of_old)
+        };
+        debug_assert_eq!(self.grid_node.len(), grid.top().node_count());
+        let index_of = |grid_node: &[u32], n: u32| -> u32 {
+            grid_node.binary_search(&n).expect("an element's node is live") as u32
+        };
+
+        // Elements: the same merge by grid id. Touched ones are read from the grid; the nodes
+        // of the others (unchanged in the grid) are renumbered. Nodes an element left or joined
+        // get their lumped mass summed again.
+        let old_ids: Vec<u32> = self.elements.iter().map(|e| e.grid_id).collect();
+        let mut dirty = vec![false; self.rest.len()];
+        let mut shared = SharedMatrices::default();
+        let mut new_matrices = Vec::new();
+        // Element `id` (to be at index `at`) read from the grid: its nodes, and its matrices
+        // unless it keeps `kept`.
+        let mut fresh_element = |id: u32,
+                                 at: usize,
+                                 kept: Option<HexElement>,
+                                 grid_node: &[u32],
+                                 dirty: &mut [bool]| {
+            let e = grid.top().element(id).expect("a touched element is live");
+            let nodes = e.nodes.map(|n| index_of(grid_node, n));
+            for &n in &nodes {
+                dirty[n as usize] = true;
+            }
+            if let Some(kept) = kept.filter(|_| recondensed.binary_search(&id).is_err()) {
+                HexElement { nodes, ..kept }
+            } else {
+                new_matrices.push(at as u32);
+                let m = grid.matrices(id).expect("live element has matrices");
+                HexElement {
+                    nodes,
+                    stiffness: shared.get(m.stiffness.symmetrized()),
+                    mass: m.mass,
+                    grid_id: id,
+                }
+            }
+        };
+        let lose_mass = |e: &HexElement, dirty: &mut [bool]| {
+            for &n in &e.nodes {
+                if let Some(&k) = new_of_old.get(n as usize).filter(|&&k| k != u32::MAX) {
+                    dirty[k as usize] = true;
+                }
+            }
+        };
+        let element_before = if elements_gone.is_empty() && elements_new.is_empty() {
+            // Every element keeps its index: patched where it lies (moving the others costs
+            // more than the rest of a small cut).
+            let renumbered = !nodes_gone.is_empty() || !nodes_new.is_empty();
+            for (i, e) in self.elements.iter_mut().enumerate() {
+                if touched.binary_search(&e.grid_id).is_ok() {
+                    lose_mass(e, &mut dirty);
+                    *e = fresh_element(e.grid_id, i, Some(e.clone()), &self.grid_node, &mut dirty);
+                } else if renumbered {
+                    for n in &mut e.nodes {
+                        *n = new_of_old[*n as usize];
+                        debug_assert_ne!(*n, u32::MAX, "an untouched element lost a node");
+                    }
+                }
+            }
+            (0..self.elements.len() as u32).map(Some).collect()
+        } else {
+            let old = std::mem::take(&mut self.elements);
+            let mut elements = Vec::with_capacity(grid.top().element_count());
+            let mut element_before = Vec::with_capacity(grid.top().element_count());
+            let mut fresh = elements_new.iter().copied().peekable();
+            for (j, mut e) in old.into_iter().enumerate() {
+                while let Some(id) = fresh.next_if(|&id| id < e.grid_id) {
+                    let at = elements.len();
+                    elements.push(fresh_element(id, at, None, &self.grid_node, &mut dirty));
+                    element_before.push(None);
+                }
+                let gone = elements_gone.binary_search(&e.grid_id).is_ok();
+                let again = touched.binary_search(&e.grid_id).is_ok();
+                if gone || again {
+                    lose_mass(&e, &mut dirty);
+                }
+                if gone {
+                    continue;
+                }
+                if again {
+                    let (id, at) = (e.grid_id, elements.len());
+                    elements.push(fresh_element(id, at, Some(e), &self.grid_node, &mut dirty));
+                } else {
+                    for n in &mut e.nodes {
+                        *n = new_of_old[*n as usize];
+                        debug_assert_ne!(*n, u32::MAX, "an untouched element lost a node");
+                    }
+                    elements.push(e);
+                }
+                element_before.push(Some(j as u32));
+            }
+            for id in fresh {
+                let at = elements.len();
+                elements.push(fresh_element(id, at, None, &self.grid_node, &mut dirty));
+                element_before.push(None);
+            }
+            self.elements = elements;
+            element_before
+        };
+        debug_assert_eq!(self.elements.len(), grid.top().element_count());
+
+        // Each dirty node's mass summed again as `build` sums it: over the elements in order.
+        for (m, &d) in self.lumped_mass.iter_mut().zip(&dirty) {
+            if d {
+                *m = 0.0;
+            }
+        }
+        for e in &self.elements {
+            if e.nodes.iter().any(|&n| dirty[n as usize]) {
+                let m = grid.matrices(e.grid_id).expect("live element has matrices");
+                for (c, &n) in e.nodes.iter().enumerate() {
+                    if dirty[n as usize] {
+                        self.lumped_mass[n as usize] += m.lumped_mass[c];
+                    }
+                }
+            }
+        }
+        Renumbering {
+            node_before,
+            grid_node_before,
+            element_before,
+            grid_id_before: old_ids,
+            new_matrices,
+        }
+    }
+
+    /// The model of `grid`.
+    fn build(grid: &BranchedGrid) -> Self {
         let top = grid.top();
         let mut model_of = vec![u32::MAX; top.node_capacity()];
         let mut rest = Vec::with_capacity(top.node_count());
@@ -97,9 +282,8 @@ impl HexModel {
             for (c, &n) in nodes.iter().enumerate() {
                 lumped_mass[n as usize] += m.lumped_mass[c];
             }
-            let (stiffness, mass) =
-                reuse(id).unwrap_or_else(|| (shared.get(m.stiffness.symmetrized()), m.mass));
-            elements.push(HexElement { nodes, stiffness, mass, grid_id: id });
+            let stiffness = shared.get(m.stiffness.symmetrized());
+            elements.push(HexElement { nodes, stiffness, mass: m.mass, grid_id: id });
         }
         Self { rest, lumped_mass, elements, element_size: grid.element_size(), grid_node }
     }
@@ -189,6 +373,45 @@ impl HexModel {
             }
         }
         u
+    }
+}
+
+/// How [`HexModel::update`] moved the model's nodes and elements: what the force field, the
+/// state and the integrators need to carry their own per-node and per-element data across a cut.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Renumbering {
+    /// Per node of the updated model, its index before the edit (`None`: a node the edit added).
+    pub node_before: Vec<Option<u32>>,
+    /// The grid node id of each node before the edit (sorted).
+    pub grid_node_before: Vec<u32>,
+    /// Per element of the updated model, its index before the edit (`None`: added).
+    pub element_before: Vec<Option<u32>>,
+    /// The grid id of each element before the edit (sorted).
+    pub grid_id_before: Vec<u32>,
+    /// The elements (updated indices) whose matrices were read from the grid again: added and
+    /// re-condensed ones; sorted. The others kept their stiffness (the same `Arc`) and mass.
+    pub new_matrices: Vec<u32>,
+}
+
+impl Renumbering {
+    /// True when every node kept its index (the edit added and removed no node).
+    #[must_use]
+    pub fn same_nodes(&self) -> bool {
+        self.node_before.len() == self.grid_node_before.len()
+            && self.node_before.iter().enumerate().all(|(i, &b)| b == Some(i as u32))
+    }
+
+    /// The index before the edit of the node with grid id `g`, if there was one.
+    #[must_use]
+    pub fn node_before_by_grid_id(&self, g: u32) -> Option<usize> {
+        self.grid_node_before.binary_search(&g).ok()
+    }
+
+    /// The index before the edit of the element with grid id `id`, if there was one (an element
+    /// the edit removed included: a new element may reuse its id).
+    #[must_use]
+    pub fn element_before_by_grid_id(&self, id: u32) -> Option<usize> {
+        self.grid_id_before.binary_search(&id).ok()
     }
 }
 

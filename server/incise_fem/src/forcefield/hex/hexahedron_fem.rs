@@ -15,7 +15,7 @@ use crate::forcefield::hex::kernel::{
     vectorized,
 };
 use crate::forcefield::hex::walsh::Walsh;
-use crate::model::HexModel;
+use crate::model::{HexModel, Renumbering};
 use incise_grid::hex8::{Mat24, corner};
 use incise_math::Vec3;
 use incise_math::lanes::{Lane, Lane4};
@@ -226,6 +226,69 @@ impl HexForceField {
             }
         }
         out
+    }
+
+    /// [`HexForceField::remapped`] in place, for `model` brought through an edit by
+    /// [`HexModel::update`] (`renumbering`, what it returned): the elements that kept their
+    /// matrices keep their permuted matrices, rotation and rotation gradients; only those with
+    /// new matrices are prepared again, a new element starting from the rotation of the element
+    /// it split from (`origin(grid_id)`, a grid id before the edit) or else of the element that
+    /// had its id.
+    pub fn remap(
+        &mut self,
+        model: &HexModel,
+        renumbering: &Renumbering,
+        origin: impl Fn(u32) -> Option<u32>,
+    ) {
+        let s = model.element_size;
+        let mut known = Shared::new();
+        let mut prepared = |el: &crate::model::HexElement| {
+            let (k, w) = known.entry(Arc::as_ptr(&el.stiffness)).or_insert_with(|| {
+                let k = component_major(&el.stiffness);
+                let w = Walsh::of(&k).map(Arc::new);
+                (Arc::new(k), w)
+            });
+            (Arc::clone(k), w.clone(), material_gradient(&el.mass, s).map(Arc::new))
+        };
+        let kept_all = renumbering.element_before.len() == self.frames.len()
+            && renumbering.element_before.iter().enumerate().all(|(i, &b)| b == Some(i as u32));
+        if kept_all {
+            // No element added or removed: none has an origin, and each keeps its rotation.
+            for &i in &renumbering.new_matrices {
+                let i = i as usize;
+                (self.stiffness[i], self.walsh[i], self.off_centre[i]) =
+                    prepared(&model.elements[i]);
+            }
+            return;
+        }
+        let frames = std::mem::take(&mut self.frames);
+        let stiffness = std::mem::take(&mut self.stiffness);
+        let walsh = std::mem::take(&mut self.walsh);
+        let off_centre = std::mem::take(&mut self.off_centre);
+        let mut fresh = renumbering.new_matrices.iter().copied().peekable();
+        for (i, el) in model.elements.iter().enumerate() {
+            let again = fresh.next_if_eq(&(i as u32)).is_some();
+            match renumbering.element_before[i] {
+                Some(j) if !again => {
+                    let j = j as usize;
+                    self.frames.push(frames[j]);
+                    self.stiffness.push(Arc::clone(&stiffness[j]));
+                    self.walsh.push(walsh[j].clone());
+                    self.off_centre.push(off_centre[j].clone());
+                }
+                _ => {
+                    let before = origin(el.grid_id).map_or_else(
+                        || renumbering.element_before_by_grid_id(el.grid_id),
+                        |o| renumbering.element_before_by_grid_id(o),
+                    );
+                    self.frames.push(before.map_or(Frame::IDENTITY, |j| frames[j]));
+                    let (k, w, g) = prepared(el);
+                    self.stiffness.push(k);
+                    self.walsh.push(w);
+                    self.off_centre.push(g);
+                }
+            }
+        }
     }
 
     /// The formulation.

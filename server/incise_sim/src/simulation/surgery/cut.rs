@@ -27,28 +27,43 @@ pub struct DeformedGrid<'a> {
     pub by_grid_node: &'a [Vec3],
 }
 
+/// An element's deformed corners and its cell: what its voxels' centres are interpolated from.
+struct ElementFrame {
+    corners: [Vec3; 8],
+    cell: [u32; 3],
+}
+
 impl DeformedGrid<'_> {
     /// The deformed centre of voxel `v`, `None` when it is empty.
     pub fn centre(&self, v: u32) -> Option<Vec3> {
+        let e = self.grid.voxel_element(v)?;
+        let element = self.grid.top().element(e)?;
+        Some(self.centre_in(&self.frame(element), v))
+    }
+
+    fn frame(&self, element: &incise_grid::Element) -> ElementFrame {
+        ElementFrame {
+            corners: element.nodes.map(|n| self.by_grid_node[n as usize]),
+            cell: self.grid.top().cell_coords(element.cell),
+        }
+    }
+
+    /// The deformed centre of voxel `v` of the element `frame` describes.
+    fn centre_in(&self, frame: &ElementFrame, v: u32) -> Vec3 {
         let grid = self.grid;
-        let e = grid.voxel_element(v)?;
-        let top = grid.top();
-        let element = top.element(e)?;
-        let cell = top.cell_coords(element.cell);
         let (size, h, dims) = (grid.element_size(), grid.spacing(), grid.fine().dims());
         let c = [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])];
         let xi: Vec3 = std::array::from_fn(|a| {
-            ((f64::from(c[a]) + 0.5) * h[a] - f64::from(cell[a]) * size[a]) / size[a]
+            ((f64::from(c[a]) + 0.5) * h[a] - f64::from(frame.cell[a]) * size[a]) / size[a]
         });
         let mut p = [0.0; 3];
-        for (n, &node) in element.nodes.iter().enumerate() {
+        for (n, q) in frame.corners.iter().enumerate() {
             let w = shape(n, xi);
-            let q = self.by_grid_node[node as usize];
             for k in 0..3 {
                 p[k] += w * q[k];
             }
         }
-        Some(p)
+        p
     }
 
     /// The face neighbours of `v` that hold material and are still linked to it.
@@ -60,13 +75,13 @@ impl DeformedGrid<'_> {
         for a in 0..3 {
             if c[a] > 0 {
                 let w = v - stride[a];
-                if fine.material(w).is_some() && !fine.is_severed(v, w) {
+                if fine.material(w).is_some() && !fine.is_severed_along(w, a) {
                     out.push(w);
                 }
             }
             if c[a] + 1 < d[a] {
                 let w = v + stride[a];
-                if fine.material(w).is_some() && !fine.is_severed(v, w) {
+                if fine.material(w).is_some() && !fine.is_severed_along(v, a) {
                     out.push(w);
                 }
             }
@@ -78,15 +93,25 @@ impl DeformedGrid<'_> {
         self.grid.spacing().into_iter().fold(0.0, f64::max)
     }
 
-    /// The voxels of the elements whose deformed bounding boxes overlap `(lo, hi)` grown by
-    /// `reach`, whose deformed centres satisfy `keep`.
+    /// The voxels whose deformed centres satisfy `keep`, which holds nowhere outside `(lo, hi)`
+    /// grown by `reach`: those of the elements whose deformed bounding boxes overlap that box.
     fn voxels_near(
         &self,
         (lo, hi): (Vec3, Vec3),
         reach: f64,
         keep: impl Fn(Vec3) -> bool,
     ) -> Vec<u32> {
+        // A centre outside the box is not tested (the tool's distance costs more than the
+        // centre); the margin, far above the rounding of the tool's transforms, keeps a centre
+        // that `keep` takes on the box's boundary.
+        let margin = 1e-6 * self.voxel();
+        let (box_lo, box_hi): (Vec3, Vec3) = (
+            std::array::from_fn(|k| lo[k] - reach - margin),
+            std::array::from_fn(|k| hi[k] + reach + margin),
+        );
+        let in_box = |c: &Vec3| (0..3).all(|k| c[k] >= box_lo[k] && c[k] <= box_hi[k]);
         let mut out = Vec::new();
+        let mut voxels = Vec::new();
         for (id, element) in self.grid.top().elements() {
             let mut a = [f64::INFINITY; 3];
             let mut b = [f64::NEG_INFINITY; 3];
@@ -100,12 +125,14 @@ impl DeformedGrid<'_> {
             if (0..3).any(|k| b[k] < lo[k] - reach || a[k] > hi[k] + reach) {
                 continue;
             }
-            out.extend(
-                self.grid
-                    .element_voxels(id)
-                    .into_iter()
-                    .filter(|&v| self.centre(v).is_some_and(&keep)),
-            );
+            // The element's voxels are its own: their centres from its frame, looked up once.
+            voxels.clear();
+            self.grid.element_voxels_into(id, &mut voxels);
+            let frame = self.frame(element);
+            out.extend(voxels.iter().copied().filter(|&v| {
+                let c = self.centre_in(&frame, v);
+                in_box(&c) && keep(c)
+            }));
         }
         out
     }

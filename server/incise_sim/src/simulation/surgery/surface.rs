@@ -162,9 +162,10 @@ impl OrganSurface {
             Self::Voxels { surface, mapping, model_of_grid: map, live } => {
                 let surface_changes = surface.remesh(grid.fine(), voxels);
                 let changed = incise_surface::changed_elements(changes);
-                mapping.update(surface, grid, &changed, &surface_changes, &|g| g);
-                *map = model_of_grid(grid, model);
-                *live = live_of(surface);
+                mapping.update_by_grid_node(surface, grid, &changed, &surface_changes);
+                fill_model_of_grid(map, grid, model);
+                patch_live(live, &surface_changes);
+                debug_assert_eq!(*live, live_of(surface));
                 surface_changes
             }
             Self::Tetrahedra { .. } => SurfaceChanges::default(),
@@ -189,13 +190,80 @@ fn live_of(surface: &Surface) -> Vec<u32> {
     surface.vertices().iter().enumerate().filter(|(_, v)| v.alive).map(|(i, _)| i as u32).collect()
 }
 
+/// The sorted live vertices `live` after the surface changed by `changes` (both lists sorted),
+/// without a pass over every vertex slot (which cost more than the rest of a small cut's
+/// re-meshing).
+fn patch_live(live: &mut Vec<u32>, changes: &SurfaceChanges) {
+    let (removed, added) = (&changes.vertices_removed, &changes.vertices_added);
+    if 32 * (removed.len() + added.len()) > live.len() {
+        // Many changes (a long stroke in one edit): one merge pass is cheaper than many runs.
+        *live = merged(live, removed, added);
+    } else {
+        patch_runs(live, removed, added);
+    }
+}
+
+/// `live` without `removed` and with `added` (all sorted), in one pass.
+fn merged(live: &[u32], removed: &[u32], added: &[u32]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(live.len() + added.len());
+    let mut gone = removed.iter().peekable();
+    let mut new = added.iter().copied().peekable();
+    for &v in live {
+        while gone.next_if(|&&r| r < v).is_some() {}
+        if gone.next_if_eq(&&v).is_none() {
+            while let Some(a) = new.next_if(|&a| a < v) {
+                out.push(a);
+            }
+            out.push(v);
+        }
+    }
+    out.extend(new);
+    out
+}
+
+/// `live` without `removed` and with `added` (all sorted), moving the runs between them whole.
+fn patch_runs(live: &mut Vec<u32>, removed: &[u32], added: &[u32]) {
+    if let Some(&first) = removed.first() {
+        let mut write = live.partition_point(|&v| v < first);
+        let mut read = write;
+        for &r in removed {
+            let at = read + live[read..].partition_point(|&v| v < r);
+            live.copy_within(read..at, write);
+            write += at - read;
+            read = if live.get(at) == Some(&r) { at + 1 } else { at };
+        }
+        live.copy_within(read.., write);
+        write += live.len() - read;
+        live.truncate(write);
+    }
+    // Merged from the back: each old run moves once, to its final place.
+    let mut unplaced = live.len();
+    live.resize(unplaced + added.len(), 0);
+    let mut end = live.len();
+    for &a in added.iter().rev() {
+        let at = live[..unplaced].partition_point(|&v| v < a);
+        let run = unplaced - at;
+        live.copy_within(at..unplaced, end - run);
+        end -= run + 1;
+        live[end] = a;
+        unplaced = at;
+    }
+}
+
 /// Model index of each grid node id.
 fn model_of_grid(grid: &BranchedGrid, model: &HexModel) -> Vec<u32> {
-    let mut map = vec![u32::MAX; grid.top().node_capacity()];
+    let mut map = Vec::new();
+    fill_model_of_grid(&mut map, grid, model);
+    map
+}
+
+/// [`model_of_grid`] into `map`'s buffer.
+fn fill_model_of_grid(map: &mut Vec<u32>, grid: &BranchedGrid, model: &HexModel) {
+    map.clear();
+    map.resize(grid.top().node_capacity(), u32::MAX);
     for (i, &g) in model.grid_node.iter().enumerate() {
         map[g as usize] = i as u32;
     }
-    map
 }
 
 /// The vertices of a tetrahedral surface's live triangles, sorted.
@@ -204,4 +272,41 @@ fn boundary_vertices(surface: &TetSurface) -> Vec<u32> {
     v.sort_unstable();
     v.dedup();
     v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_live_list_is_patched_into_a_fresh_one() {
+        let changes = |removed: &[u32], added: &[u32]| SurfaceChanges {
+            vertices_removed: removed.to_vec(),
+            vertices_added: added.to_vec(),
+            ..SurfaceChanges::default()
+        };
+        for (live, c, want) in [
+            (vec![1, 3, 5, 7], changes(&[3, 7], &[0, 4, 9]), vec![0, 1, 4, 5, 9]),
+            (vec![1, 3, 5, 7], changes(&[], &[]), vec![1, 3, 5, 7]),
+            (vec![1, 3, 5, 7], changes(&[1, 3, 5, 7], &[]), vec![]),
+            (vec![], changes(&[], &[2, 6]), vec![2, 6]),
+            (vec![2, 4, 6], changes(&[4], &[5]), vec![2, 5, 6]),
+            (vec![2, 4, 6], changes(&[6], &[7, 8]), vec![2, 4, 7, 8]),
+            (vec![2, 4, 6], changes(&[2], &[0, 1, 3]), vec![0, 1, 3, 4, 6]),
+            (vec![2, 4, 6], changes(&[2, 6], &[]), vec![4]),
+            (vec![2, 4, 6], changes(&[], &[8]), vec![2, 4, 6, 8]),
+            ((0..100).collect(), changes(&[0, 50, 99], &[100, 101]), {
+                (1..50).chain(51..99).chain(100..102).collect()
+            }),
+        ] {
+            let (removed, added) = (&c.vertices_removed, &c.vertices_added);
+            let mut runs = live.clone();
+            patch_runs(&mut runs, removed, added);
+            assert_eq!(runs, want, "{live:?} with {c:?}");
+            assert_eq!(merged(&live, removed, added), want, "{live:?} with {c:?}");
+            let mut patched = live.clone();
+            patch_live(&mut patched, &c);
+            assert_eq!(patched, want, "{live:?} with {c:?}");
+        }
+    }
 }

@@ -193,7 +193,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             Body {
                 field: HexForceField::new(model, Formulation::Corotational),
                 state: State::at_rest(model),
-                organ: OrganSurface::voxels(grid, model, &options),
+                organ: OrganSurface::voxels(grid, model, &options, 0),
                 mapping: SurfaceMapping::embed(&surface, grid, &|g| g),
                 surface,
                 grid: grid.clone(),

@@ -95,11 +95,11 @@ pub fn detect(
     points: impl IntoIterator<Item = (u32, Vec3)>,
     details: &impl PointDetails,
 ) -> Contact {
-    let (lo, hi) = grid_bounds(shape, pose);
+    let (lo, hi) = shape.grid_bounds(pose);
     let sweep = previous.map(|(from, dt)| Sweep::new(shape, from, pose, dt));
     let (lo, hi) = match &sweep {
         Some(s) => {
-            let (a, b) = grid_bounds(shape, s.from);
+            let (a, b) = shape.grid_bounds(s.from);
             (std::array::from_fn(|k| lo[k].min(a[k])), std::array::from_fn(|k| hi[k].max(b[k])))
         }
         None => (lo, hi),
@@ -138,22 +138,6 @@ pub fn detect(
 /// `k n nᵀ`.
 fn outer(n: Vec3, k: f64) -> Mat3 {
     std::array::from_fn(|r| std::array::from_fn(|c| k * n[r] * n[c]))
-}
-
-/// The grid-frame bounding box of `shape` at `pose`.
-fn grid_bounds(shape: &Shape, pose: &Pose) -> (Vec3, Vec3) {
-    let (lo, hi) = shape.bounds();
-    let mut a = [f64::INFINITY; 3];
-    let mut b = [f64::NEG_INFINITY; 3];
-    for corner in 0..8 {
-        let q = std::array::from_fn(|k| if corner >> k & 1 == 0 { lo[k] } else { hi[k] });
-        let p = pose.grid_from_tool(q);
-        for k in 0..3 {
-            a[k] = a[k].min(p[k]);
-            b[k] = b[k].max(p[k]);
-        }
-    }
-    (a, b)
 }
 
 /// The tool's motion between two frames, sampled finely enough that nothing thinner than the

@@ -163,6 +163,24 @@ impl Shape {
         )
     }
 
+    /// The bounding box of the shape at `pose`, in the grid frame: the box of its tool-frame
+    /// box's corners.
+    #[must_use]
+    pub fn grid_bounds(&self, pose: &crate::Pose) -> (Vec3, Vec3) {
+        let (lo, hi) = self.bounds();
+        let mut a = [f64::INFINITY; 3];
+        let mut b = [f64::NEG_INFINITY; 3];
+        for corner in 0..8 {
+            let q = std::array::from_fn(|k| if corner >> k & 1 == 0 { lo[k] } else { hi[k] });
+            let p = pose.grid_from_tool(q);
+            for k in 0..3 {
+                a[k] = a[k].min(p[k]);
+                b[k] = b[k].max(p[k]);
+            }
+        }
+        (a, b)
+    }
+
     /// The shape's thinnest dimension (m): a moving tool is tested for crossing points at
     /// sub-steps shorter than half of it, so that nothing passes through it between two tests.
     /// For a mesh, the smallest extent of its bounding box (an upper bound for a mesh with

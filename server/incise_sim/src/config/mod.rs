@@ -1271,6 +1271,20 @@ impl Checker<'_> {
     }
 
     /// A finite number (NaN and infinities are TOML numbers too).
+    /// A length unit (`"m"`, the default, `"cm"` or `"mm"`).
+    fn unit(&self, u: Option<&Spanned<String>>, key: &str) -> Result<LengthUnit, SceneError> {
+        match u.map(|u| (u.span(), u.get_ref().as_str())) {
+            None | Some((_, "m")) => Ok(LengthUnit::Metre),
+            Some((_, "cm")) => Ok(LengthUnit::Centimetre),
+            Some((_, "mm")) => Ok(LengthUnit::Millimetre),
+            Some((span, other)) => Err(self.invalid(
+                span,
+                key,
+                format!("is \"{other}\"; expected \"m\", \"cm\" or \"mm\""),
+            )),
+        }
+    }
+
     fn finite(&self, v: &Spanned<f64>, key: &str) -> Result<f64, SceneError> {
         let x = *v.get_ref();
         if x.is_finite() {
@@ -1390,18 +1404,7 @@ impl Checker<'_> {
                 &file_keys,
                 "applies to a volume file; a mesh file has no voxels (its regions are `[[materials]]` labels)",
             )?;
-            let unit = match v.unit.as_ref().map(|u| (u.span(), u.get_ref().as_str())) {
-                None | Some((_, "m")) => LengthUnit::Metre,
-                Some((_, "cm")) => LengthUnit::Centimetre,
-                Some((_, "mm")) => LengthUnit::Millimetre,
-                Some((span, other)) => {
-                    return Err(self.invalid(
-                        span,
-                        "volume.unit",
-                        format!("is \"{other}\"; expected \"m\", \"cm\" or \"mm\""),
-                    ));
-                }
-            };
+            let unit = self.unit(v.unit.as_ref(), "volume.unit")?;
             let region = match &v.region {
                 Some(name) if name.get_ref().trim().is_empty() => {
                     return Err(self.invalid(

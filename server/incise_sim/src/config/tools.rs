@@ -237,18 +237,7 @@ impl Checker<'_> {
                     "describes an analytic shape; it cannot be given with `mesh`",
                 ));
             }
-            let unit = match raw.unit.as_ref().map(|u| (u.span(), u.get_ref().as_str())) {
-                None | Some((_, "m")) => LengthUnit::Metre,
-                Some((_, "cm")) => LengthUnit::Centimetre,
-                Some((_, "mm")) => LengthUnit::Millimetre,
-                Some((span, other)) => {
-                    return Err(self.invalid(
-                        span,
-                        &format!("{key}.unit"),
-                        format!("is \"{other}\"; expected \"m\", \"cm\" or \"mm\""),
-                    ));
-                }
-            };
+            let unit = self.unit(raw.unit.as_ref(), &format!("{key}.unit"))?;
             return Ok(ShapeSpec::Mesh { path: path.get_ref().clone(), unit, offset });
         }
         if let Some(unit) = &raw.unit {

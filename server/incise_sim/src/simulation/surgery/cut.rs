@@ -170,7 +170,7 @@ pub fn voxels_inside(
     positions: &[Vec3],
 ) -> Vec<u32> {
     let inside = |p: Vec3| inner.distance(pose.tool_from_grid(p)).0;
-    let bounds = grid_bounds(inner, pose);
+    let bounds = inner.grid_bounds(pose);
     let mut seeds = seeds(surface, positions, grid.voxel(), bounds, inside);
     seeds.extend(grid.voxels_near(bounds, 0.0, |c| inside(c) < 0.0));
     if seeds.is_empty() {
@@ -220,22 +220,6 @@ pub fn links_crossed(
     links.sort_unstable();
     links.dedup();
     links
-}
-
-/// The grid-frame bounding box of `shape` at `pose`.
-fn grid_bounds(shape: &Shape, pose: &Pose) -> (Vec3, Vec3) {
-    let (lo, hi) = shape.bounds();
-    let mut a = [f64::INFINITY; 3];
-    let mut b = [f64::NEG_INFINITY; 3];
-    for corner in 0..8 {
-        let q = std::array::from_fn(|k| if corner >> k & 1 == 0 { lo[k] } else { hi[k] });
-        let p = pose.grid_from_tool(q);
-        for k in 0..3 {
-            a[k] = a[k].min(p[k]);
-            b[k] = b[k].max(p[k]);
-        }
-    }
-    (a, b)
 }
 
 /// The live tetrahedra whose deformed centroids `inner` at `pose` contains. Sorted.

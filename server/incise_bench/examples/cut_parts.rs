@@ -186,8 +186,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let sim = fresh();
         let (grid, model) = (sim.grid().expect("hexahedral"), sim.model().expect("hexahedral"));
         let options = SurfaceOptions::default();
-        // Surfaces extracted, not cloned: a clone has no room to grow, and its first cut would
-        // pay for moving every vertex and triangle.
+        // Surfaces and models built, not cloned: a clone has no room to grow, and its first cut
+        // would pay for moving every vertex, triangle or element.
         let body = || {
             let surface = Surface::extract(grid.fine(), grid.spacing(), &options);
             Body {
@@ -197,7 +197,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 mapping: SurfaceMapping::embed(&surface, grid, &|g| g),
                 surface,
                 grid: grid.clone(),
-                model: model.clone(),
+                model: HexModel::from_grid(grid),
             }
         };
         let voxels = stroke(grid, 500);

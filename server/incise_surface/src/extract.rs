@@ -113,7 +113,8 @@ pub struct Surface {
     /// per triangle, and a tree of the liver's 50,000 vertices made that most of a cut's
     /// re-meshing. Never iterated, so its order cannot leak into ids.
     pub(crate) vertex_ids: HashMap<(u32, u16, u8), u32, FastHash>,
-    /// Triangle ids of each cube holding any, in the order the cube made them.
+    /// Triangle ids of each cube, in the order the cube made them (empty for a cube that held
+    /// some once and has none now).
     pub(crate) cube_triangles: HashMap<u32, Vec<u32>, FastHash>,
 }
 

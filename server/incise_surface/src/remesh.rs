@@ -72,7 +72,10 @@ impl Surface {
         let mut changes = SurfaceChanges::default();
         let mut unused: Vec<u32> = Vec::new();
         for cube in stale {
-            for t in self.cube_triangles.remove(&cube).unwrap_or_default() {
+            // Emptied, not removed: the cube's list keeps its allocation for the triangles it
+            // gets again below (an allocation per re-meshed cube was a tenth of the cost).
+            let Some(list) = self.cube_triangles.get_mut(&cube) else { continue };
+            for t in list.drain(..) {
                 let tri = &mut self.triangles[t as usize];
                 tri.alive = false;
                 for &v in &tri.v {

@@ -234,6 +234,10 @@ impl HexForceField {
     /// new matrices are prepared again, a new element starting from the rotation of the element
     /// it split from (`origin(grid_id)`, a grid id before the edit) or else of the element that
     /// had its id.
+    ///
+    /// # Panics
+    /// If `renumbering` is not what [`HexModel::update`] returned for `model` and this field's
+    /// model.
     pub fn remap(
         &mut self,
         model: &HexModel,
@@ -261,20 +265,28 @@ impl HexForceField {
             }
             return;
         }
-        let frames = std::mem::take(&mut self.frames);
-        let stiffness = std::mem::take(&mut self.stiffness);
-        let walsh = std::mem::take(&mut self.walsh);
-        let off_centre = std::mem::take(&mut self.off_centre);
+        // The kept elements' data moves over (in order: their old indices rise), not cloned:
+        // a reference count touched per element cost more than preparing the new ones.
+        let n = model.elements.len();
+        let frames = std::mem::replace(&mut self.frames, Vec::with_capacity(n));
+        let mut old = std::mem::replace(&mut self.stiffness, Vec::with_capacity(n))
+            .into_iter()
+            .zip(std::mem::replace(&mut self.walsh, Vec::with_capacity(n)))
+            .zip(std::mem::replace(&mut self.off_centre, Vec::with_capacity(n)))
+            .enumerate();
         let mut fresh = renumbering.new_matrices.iter().copied().peekable();
         for (i, el) in model.elements.iter().enumerate() {
             let again = fresh.next_if_eq(&(i as u32)).is_some();
             match renumbering.element_before[i] {
                 Some(j) if !again => {
                     let j = j as usize;
+                    let ((k, w), g) = old
+                        .find_map(|(at, data)| (at == j).then_some(data))
+                        .expect("kept elements keep their order");
                     self.frames.push(frames[j]);
-                    self.stiffness.push(Arc::clone(&stiffness[j]));
-                    self.walsh.push(walsh[j].clone());
-                    self.off_centre.push(off_centre[j].clone());
+                    self.stiffness.push(k);
+                    self.walsh.push(w);
+                    self.off_centre.push(g);
                 }
                 _ => {
                     let before = origin(el.grid_id).map_or_else(

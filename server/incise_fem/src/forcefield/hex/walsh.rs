@@ -38,6 +38,14 @@ impl Walsh {
     /// The sparse form of `k` (component-major, symmetric) when it has the pattern of a full cell
     /// of one isotropic material; `None` otherwise (partially filled cells, superimposed ones).
     pub(crate) fn of(k: &Mat24) -> Option<Self> {
+        if off_pattern_in_first_block(k) {
+            return None;
+        }
+        Self::transformed(k)
+    }
+
+    /// [`Walsh::of`] from the whole transform.
+    fn transformed(k: &Mat24) -> Option<Self> {
         // D = Ĥ K Ĥ (Ĥ symmetric, per component block) by fast transforms of the rows' and then
         // the columns' 8-entry segments: a few thousand operations, since this runs for every
         // distinct matrix whenever a cut rebuilds the force field.
@@ -113,6 +121,27 @@ impl Walsh {
 /// index bit 2, then bit 1, then bit 0 (the order the AVX2 path follows).
 #[allow(clippy::inline_always)]
 #[inline(always)]
+/// True when the first component block of `Ĥ K Ĥ` already has an entry outside the pattern
+/// past the tolerance, whatever the rest holds. A partly filled cell breaks the pattern across
+/// the matrix, so this block shows it at a ninth of the whole transform's cost (a cut's
+/// re-condensed cells paid for the whole). Every entry of `Ĥ K Ĥ` sums 64 entries of `K`, so
+/// twice 64 times the largest of those bounds its largest entry, rounding included: an entry past
+/// the tolerance of that bound is past the tolerance of the largest entry too.
+fn off_pattern_in_first_block(k: &Mat24) -> bool {
+    let bound = 128.0 * k.0.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+    let mut block = [[0.0; 8]; 8];
+    for (w, row) in block.iter_mut().enumerate() {
+        row.copy_from_slice(&k.0[24 * w..24 * w + 8]);
+        transform(row);
+    }
+    (0..8).any(|v| {
+        let mut column: [f64; 8] = std::array::from_fn(|w| block[w][v]);
+        transform(&mut column);
+        // In the block of components (0, 0) the pattern is the diagonal.
+        column.iter().enumerate().any(|(w, x)| w != v && x.abs() > PATTERN_TOLERANCE * bound)
+    })
+}
+
 fn transform(x: &mut [f64; 8]) {
     for stride in [4, 2, 1] {
         for k in 0..8 {
@@ -249,6 +278,48 @@ mod tests {
 
     /// A cell with one voxel missing has lost the reflection symmetries: it keeps the dense
     /// product.
+    #[test]
+    fn the_first_block_decides_as_the_whole_transform() {
+        use incise_grid::procedural::{TISSUE, TUMOUR, ellipsoid_with_inclusion, from_fn};
+        use incise_grid::{BranchedGrid, Material, MaterialTable};
+        let mut table = MaterialTable::new();
+        table.insert(TISSUE, Material::new(3e3, 0.45, 1000.0));
+        table.insert(TUMOUR, Material::new(3e4, 0.45, 1000.0));
+        // Full, partly filled and superimposed cells; and cells missing their corner voxels, or
+        // a mirror-symmetric slab, which keep the reflections (and so the sparse form).
+        let corners = |x: f64, y: f64, z: f64| {
+            let at_corner = [x, y, z].iter().all(|&c| matches!(c as u32 % 4, 0 | 3));
+            if at_corner { 0 } else { TISSUE }
+        };
+        let slab = |_: f64, _: f64, z: f64| if matches!(z as u32 % 4, 0 | 3) { 0 } else { TISSUE };
+        let volumes = [
+            ellipsoid_with_inclusion(20, 2e-3),
+            from_fn([8, 8, 8], [2e-3; 3], corners),
+            from_fn([8, 8, 8], [2e-3; 3], slab),
+        ];
+        let (mut sparse, mut dense) = (0, 0);
+        for v in &volumes {
+            for level in 1..=2 {
+                let grid = BranchedGrid::build(v, &table, level).expect("grid");
+                for (id, _) in grid.top().elements() {
+                    let k = &grid.matrices(id).expect("matrices").stiffness;
+                    let k = component_major(&k.symmetrized());
+                    let (of, whole) = (Walsh::of(&k), Walsh::transformed(&k));
+                    let bits = |w: &Walsh| {
+                        w.d.as_flattened()
+                            .as_flattened()
+                            .iter()
+                            .map(|x| x.to_bits())
+                            .collect::<Vec<_>>()
+                    };
+                    assert_eq!(of.as_ref().map(bits), whole.as_ref().map(bits), "element {id}");
+                    if of.is_some() { sparse += 1 } else { dense += 1 }
+                }
+            }
+        }
+        assert!(sparse > 0 && dense > 0, "{sparse} sparse, {dense} dense");
+    }
+
     #[test]
     fn a_partly_filled_cell_has_no_sparse_form() {
         use incise_grid::{BranchedGrid, Material, MaterialTable, procedural::from_fn};

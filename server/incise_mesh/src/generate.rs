@@ -1,5 +1,6 @@
 //! Tetrahedral meshes generated from structured hexahedral lattices: a label volume at any grid
-//! level (so the same organ runs in both model families) and the cylinder of paper 2's Table 1.
+//! level (so the same organ runs in both model families) and the cylinder of paper 2's Table 1;
+//! and an icosphere, a closed triangle mesh of a sphere.
 //!
 //! Every hexahedral cell is split into the 6 tetrahedra around its main diagonal (corner 0 to
 //! corner 7, Kuhn's subdivision). All cells use the same diagonal, so two cells sharing a face split
@@ -171,6 +172,82 @@ pub fn cylinder_top_centre(mesh: &TetMesh) -> usize {
             d(a).total_cmp(&d(b))
         })
         .expect("a mesh has vertices")
+}
+
+/// A closed triangle mesh of a sphere of `radius` about `centre`: the icosahedron with each
+/// triangle split into four `levels` times, the new vertices pushed out to the sphere (20 · 4^levels
+/// triangles, normals outwards). A round tool shape, and a test mesh with no flat faces.
+///
+/// # Panics
+/// If `radius` is not finite and positive, or `centre` not finite.
+#[must_use]
+pub fn icosphere(centre: Vec3, radius: f64, levels: usize) -> crate::TriMesh {
+    let t = f64::midpoint(1.0, 5f64.sqrt());
+    let normalised = |p: Vec3| {
+        let n = p.iter().map(|c| c * c).sum::<f64>().sqrt();
+        p.map(|c| c / n)
+    };
+    let mut unit: Vec<Vec3> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .map(normalised)
+    .to_vec();
+    let mut triangles: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        // Each edge's middle is made once, by whichever triangle reaches it first.
+        let mut middles: BTreeMap<[u32; 2], u32> = BTreeMap::new();
+        let mut middle = |a: u32, b: u32, unit: &mut Vec<Vec3>| {
+            *middles.entry([a.min(b), a.max(b)]).or_insert_with(|| {
+                let (p, q) = (unit[a as usize], unit[b as usize]);
+                unit.push(normalised(std::array::from_fn(|i| p[i] + q[i])));
+                unit.len() as u32 - 1
+            })
+        };
+        triangles = triangles
+            .iter()
+            .flat_map(|&[a, b, c]| {
+                let ab = middle(a, b, &mut unit);
+                let bc = middle(b, c, &mut unit);
+                let ca = middle(c, a, &mut unit);
+                [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+            })
+            .collect();
+    }
+    let vertices =
+        unit.iter().map(|p| std::array::from_fn(|a| centre[a] + radius * p[a])).collect();
+    crate::TriMesh::new(vertices, triangles).expect("a sphere of finite positive radius is closed")
 }
 
 #[cfg(test)]

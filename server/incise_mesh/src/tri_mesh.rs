@@ -392,65 +392,8 @@ mod tests {
 
     /// The unit sphere's icosahedron subdivided `levels` times, normals outwards.
     fn icosphere(levels: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-        let t = f64::midpoint(1.0, 5f64.sqrt());
-        let mut vertices: Vec<Vec3> = [
-            [-1.0, t, 0.0],
-            [1.0, t, 0.0],
-            [-1.0, -t, 0.0],
-            [1.0, -t, 0.0],
-            [0.0, -1.0, t],
-            [0.0, 1.0, t],
-            [0.0, -1.0, -t],
-            [0.0, 1.0, -t],
-            [t, 0.0, -1.0],
-            [t, 0.0, 1.0],
-            [-t, 0.0, -1.0],
-            [-t, 0.0, 1.0],
-        ]
-        .map(normalised)
-        .to_vec();
-        let mut triangles: Vec<[u32; 3]> = vec![
-            [0, 11, 5],
-            [0, 5, 1],
-            [0, 1, 7],
-            [0, 7, 10],
-            [0, 10, 11],
-            [1, 5, 9],
-            [5, 11, 4],
-            [11, 10, 2],
-            [10, 7, 6],
-            [7, 1, 8],
-            [3, 9, 4],
-            [3, 4, 2],
-            [3, 2, 6],
-            [3, 6, 8],
-            [3, 8, 9],
-            [4, 9, 5],
-            [2, 4, 11],
-            [6, 2, 10],
-            [8, 6, 7],
-            [9, 8, 1],
-        ];
-        for _ in 0..levels {
-            let mut middles: HashMap<[u32; 2], u32> = HashMap::new();
-            let mut middle = |a: u32, b: u32, vertices: &mut Vec<Vec3>| {
-                *middles.entry([a.min(b), a.max(b)]).or_insert_with(|| {
-                    let (p, q) = (vertices[a as usize], vertices[b as usize]);
-                    vertices.push(normalised(std::array::from_fn(|i| p[i] + q[i])));
-                    vertices.len() as u32 - 1
-                })
-            };
-            triangles = triangles
-                .iter()
-                .flat_map(|&[a, b, c]| {
-                    let ab = middle(a, b, &mut vertices);
-                    let bc = middle(b, c, &mut vertices);
-                    let ca = middle(c, a, &mut vertices);
-                    [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-                })
-                .collect();
-        }
-        (vertices, triangles)
+        let mesh = crate::generate::icosphere([0.0; 3], 1.0, levels);
+        (mesh.vertices().to_vec(), mesh.triangles().to_vec())
     }
 
     fn normalised(p: Vec3) -> Vec3 {

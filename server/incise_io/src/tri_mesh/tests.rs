@@ -22,75 +22,10 @@ pub(crate) fn cube() -> TriMesh {
     TriMesh::new(vertices, triangles).expect("the cube is closed")
 }
 
-/// A sphere of radius 1 cm off the origin: an icosahedron subdivided `levels` times, with
-/// coordinates that no short decimal writes exactly.
+/// A sphere of radius 1 cm off the origin, subdivided `levels` times, with coordinates that no
+/// short decimal writes exactly.
 pub(crate) fn icosphere(levels: usize) -> TriMesh {
-    let t = f64::midpoint(1.0, 5f64.sqrt());
-    let mut unit: Vec<[f64; 3]> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .map(normalised)
-    .to_vec();
-    let mut triangles: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut middles: HashMap<[u32; 2], u32> = HashMap::new();
-        let mut middle = |a: u32, b: u32, unit: &mut Vec<[f64; 3]>| {
-            *middles.entry([a.min(b), a.max(b)]).or_insert_with(|| {
-                let (p, q) = (unit[a as usize], unit[b as usize]);
-                unit.push(normalised(std::array::from_fn(|i| p[i] + q[i])));
-                unit.len() as u32 - 1
-            })
-        };
-        triangles = triangles
-            .iter()
-            .flat_map(|&[a, b, c]| {
-                let ab = middle(a, b, &mut unit);
-                let bc = middle(b, c, &mut unit);
-                let ca = middle(c, a, &mut unit);
-                [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-            })
-            .collect();
-    }
-    let centre = [0.02, -0.01, 1.0 / 3.0];
-    let vertices = unit.iter().map(|p| std::array::from_fn(|a| centre[a] + 0.01 * p[a])).collect();
-    TriMesh::new(vertices, triangles).expect("the icosphere is closed")
-}
-
-fn normalised(p: [f64; 3]) -> [f64; 3] {
-    let n = p.iter().map(|c| c * c).sum::<f64>().sqrt();
-    p.map(|c| c / n)
+    incise_mesh::generate::icosphere([0.02, -0.01, 1.0 / 3.0], 0.01, levels)
 }
 
 /// The cube with a vertex no triangle uses, inserted in the middle of the list.

@@ -247,11 +247,11 @@ impl Simulation {
 
         let t = Instant::now();
         let mut contacts = Self::contacts(surgery, dt);
-        let live = surgery.surface.live_vertices().to_vec();
-        for (i, rig) in surgery.rigs.iter_mut().enumerate() {
+        let Surgery { rigs, surface, positions, .. } = &mut *surgery;
+        for (i, rig) in rigs.iter_mut().enumerate() {
             let (Some(pose), Some(jaws)) = (rig.pose, rig.spec.jaws) else { continue };
             let touching = !contacts[i].points.is_empty();
-            let points = live.iter().map(|&v| (v, surgery.positions[v as usize]));
+            let points = surface.live_vertices().iter().map(|&v| (v, positions[v as usize]));
             frame.tools[i].grasp =
                 rig.grasp.update(&jaws, &pose.pose, pose.gripper, touching, points);
         }

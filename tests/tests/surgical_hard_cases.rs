@@ -217,12 +217,15 @@ fn top_at(sim: &Simulation, x: f64, y: f64, r: f64) -> f64 {
 /// like a free body once the blade is pulled from under it (within 0.3–1.2 × ½gt² after 0.1 s,
 /// and within 3 % of free fall under the scene's mass damping α, which is how a rigid piece
 /// falls through air thickened by α: z = g/α·(t − (1 − e^(−αt))/α)), the bottom piece stays on
-/// its base, and no node ever moves faster than 5 m/s.
+/// its base, and no node ever moves faster than 5 m/s. The slicer's contact is soft beside the
+/// tissue (10 N/m per point), as a sharp blade's is: its flat 2 mm edge reaches the voxel centres
+/// ahead of it instead of pushing the tissue away (at 100 N/m per point it pushes the layer ahead
+/// up and down, and the cut wanders off the layer and leaves a bridge).
 #[test]
 fn a_full_transection_frees_the_top_piece_which_falls() {
     let slicer = "[[tools]]
 name = \"slicer\"
-stiffness = 100.0
+stiffness = 10.0
 cutting = \"remove\"
 outer = { shape = \"blade\", length = 0.06, height = 0.06, thickness = 0.002 }
 inner = { shape = \"blade\", length = 0.06, height = 0.06, thickness = 0.002 }
@@ -257,15 +260,15 @@ inner = { shape = \"blade\", length = 0.06, height = 0.06, thickness = 0.002 }
     assert!(n_top > 0 && n_bottom > 0);
     // Pulled out sideways in one frame: the piece is dropped.
     let frame = drive(&mut sim, vec![input(0, [0.02, y + 0.07, z], LAY_FLAT, 0.0)]);
+    println!(
+        "{removed} voxels removed (a layer is 256), pieces apart at frame {pieces_apart_at:?}; the top piece rested at {:.3} mm",
+        top0[2] * 1e3
+    );
     assert_eq!(frame.surgical.tools[0].contact_points, 0, "the blade has left the block");
     assert_eq!(voxel_surface(&sim).components(), 2, "the cut freed one piece");
     assert_sound_surface(&sim, "after the transection");
     let grid = sim.grid().unwrap();
     assert_eq!(grid.fine().voxel_count(), voxels - removed);
-    println!(
-        "{removed} voxels removed (a layer is 256), pieces apart at frame {pieces_apart_at:?}; the top piece rested at {:.3} mm",
-        top0[2] * 1e3
-    );
     let mut fall_at_100 = 0.0;
     let mut bottom_moved: f64 = 0.0;
     for i in 1..200 {
@@ -301,18 +304,15 @@ inner = { shape = \"blade\", length = 0.06, height = 0.06, thickness = 0.002 }
 
 /// A membrane 2.5 mm thick (one voxel, 4 × 4 cm, held on its rim, weightless) and a flat box
 /// tool 2 mm thick that jumps in one frame from 2.5 cm above it to 2.5 cm below it (52.5 mm in
-/// 1 ms): the tool does not tunnel. On the jump frame the swept test finds the points it passed
-/// over, the tissue pushes back against the motion (the tool's force is up, hundreds of times
-/// the membrane's weight), and at the end of that frame every surface vertex over the tool's
-/// face lies below the tool's mid-plane: carried to its front face, on the far side of the tool.
-///
-/// With the scene's stiffness damping off (β = 0): the integrator applies Rayleigh's β to the
-/// contact springs too, and with β = 0.01 at 1 ms a step closes only h/(h + β) = 1/11 of a
-/// spring's gap: the membrane then moves 2.5 mm of the 26 mm on the jump frame, the sweep is over
-/// at the next frame, and the tool is left 2 cm below a membrane it no longer touches (measured;
-/// reported as a limitation, not tested here). After the jump, the stretched membrane recoils
-/// through this 2 mm tool within a few frames (a point more than half the tool's thickness inside
-/// is pushed out of the nearest face); the hold is printed, not tested.
+/// 1 ms), with the scene's usual stiffness damping (β = 0.01): the tool does not tunnel. On the
+/// jump frame the swept test finds the points it passed over, the tissue pushes back against the
+/// motion (the tool's force is up, hundreds of times the membrane's weight), and at the end of
+/// that frame every surface vertex over the tool's face lies below the tool's mid-plane: carried
+/// to its front face, on the far side of the tool. The contact springs take no part in β (it
+/// would damp them against the world, and one step would close only h/(h + β) = 1/11 of a
+/// spring's gap: the membrane moved 2.5 mm of the 26 mm when they did), and their own damping
+/// acts relative to the tool, so the points hit take up the tool's speed and fly on past it
+/// when it stops, as a membrane struck at 52 m/s does. The frames after the jump are printed.
 #[test]
 fn a_tool_jumping_5_cm_in_one_frame_carries_a_membrane_along() {
     let rim = "[[fixed]]
@@ -333,8 +333,7 @@ stiffness = 1000.0
 outer = { shape = \"box\", half_extents = [0.005, 0.005, 0.001] }
 ";
     // Weightless: the rim-held membrane would sag centimetres under gravity; the jump is the case.
-    let text = text([0.04, 0.04, 0.0025], [16, 16, 1], 0, 1e-3, NO_G, rim)
-        .replace("rayleigh_beta = 0.01", "rayleigh_beta = 0.0");
+    let text = text([0.04, 0.04, 0.0025], [16, 16, 1], 0, 1e-3, NO_G, rim);
     let mut sim = block(&SceneConfig::from_toml(&text, "membrane.toml").unwrap());
     let thickness = 0.0025;
     let rest = sim.surface_positions().unwrap();
@@ -717,6 +716,48 @@ outer = { shape = \"sphere\", radius = 0.008 }
     assert!(norm(force) > 0.0);
 }
 
+/// A flat box 4 mm thick (12 × 12 mm face) pressed 3.5 mm into the side of the cube's held base,
+/// past half its thickness: the points it passes keep being pushed out of the face they entered
+/// by (`ContactMemory`), not out of the nearer back face. Without that memory the normals of
+/// the points past the middle turned round, and the force, 16 N at 2 mm, was 0 from 3 mm on.
+/// Invariants: the force never falls during the press, points back along it, and at 3.5 mm is
+/// larger than at 1.9 mm, just short of half the thickness.
+#[test]
+fn a_box_pressed_past_half_its_thickness_into_held_tissue_keeps_pushing() {
+    let tools = "[[fixed]]
+min = [-1.0, -1.0, -1.0]
+max = [1.0, 1.0, 0.0201]
+[[tools]]
+name = \"block\"
+stiffness = 1000.0
+outer = { shape = \"box\", half_extents = [0.002, 0.006, 0.006] }
+";
+    let mut sim = block(&config([0.04; 3], [16; 3], 2, 1e-3, DOWN_G, tools));
+    let half = 0.002;
+    let mut forces = Vec::new();
+    for i in 0..=110 {
+        // From 2 mm off the side x = 0 to 3.5 mm into it, 0.05 mm a step, at mid-height of the
+        // held 2 cm.
+        let depth = -0.002 + 0.00005 * f64::from(i);
+        let frame = drive(&mut sim, at(0, [depth - half, 0.02, 0.01]));
+        forces.push((
+            depth,
+            frame.surgical.tools[0].force(),
+            frame.surgical.tools[0].contact_points,
+        ));
+    }
+    for w in forces.windows(2) {
+        assert!(norm(w[1].1) >= norm(w[0].1), "the force fell from {:?} to {:?}", w[0], w[1]);
+        assert!(w[1].1[0] <= 0.0, "the force does not push back along the press: {:?}", w[1]);
+    }
+    let at_depth = |d: f64| forces.iter().find(|f| (f.0 - d).abs() < 1e-9).unwrap();
+    let (before, after) = (at_depth(0.0019), at_depth(0.0035));
+    for f in [before, after] {
+        println!("{:.2} mm deep: {} points, force {:.3} N", f.0 * 1e3, f.2, norm(f.1));
+    }
+    assert!(norm(after.1) > norm(before.1), "no more force past half the thickness");
+}
+
 /// Poses that cannot be used are refused and leave the simulation as it was: `Pose::new`
 /// refuses NaN and non-unit quaternions, `ToolPose::new` a NaN or negative gripper; `step`
 /// refuses a tool input whose gripper is NaN, infinite or negative (`BadGripper`), whose pose was
@@ -961,28 +1002,31 @@ inner = { shape = \"blade\", length = 0.06, height = 0.03, thickness = 0.0005 }
 }
 
 /// The linearisation a frame reports predicts how the next frame's force changes with the pose.
-/// A flat box (8 × 8 mm face) pressed 1.5 mm into the top of the cube (implicit, dt = 1 ms) and
-/// held until the force is steady; two twin simulations, bit-identical so far, then take one
-/// more step each, one at the same pose and one 0.1 mm deeper. The force difference between the
-/// two full steps is compared with the one `Linearisation::extrapolate` predicts from the last
-/// common frame, `J·δ`.
+/// A flat box (10 × 10 mm face, undamped contact) pressed 1.5 mm into the top of the cube
+/// (implicit, dt = 1 ms) and held until the force is steady; two twin simulations, bit-identical
+/// so far, then take one more step each, one at the same pose and one eased back 0.1 mm. The
+/// force difference between the two full steps is compared with the one
+/// `Linearisation::extrapolate` predicts from the last common frame, `J·δ`.
 ///
-/// The flat face keeps the contact set and its normals the same under the move (no curvature
-/// term is left out), so what the prediction misses is the tissue's motion within the step: the
-/// linearisation holds the tissue still, the step lets the springs push it. In one implicit step
-/// the contact springs (k each, and the scene's stiffness damping β applies to them too) act
-/// against the tissue's `M/h² + (1 + β/h)K`; the surface points give way by a fraction of the
-/// move, and the actual change is that much smaller. Measured: 0.0738 N against 0.0800 N
-/// predicted, a ratio of 0.923 (the 4 points under the face, whose normals are along the move,
-/// gave way by 7.7 % of it). The tolerance keeps the direction and allows the ratio 0.8–1.0,
-/// over twice the measured miss: above 1 would be wrong in kind (the prediction holds the tissue
-/// still, and the tissue can only yield, never push back harder than held still).
+/// The face touches 4 surface points, 0.13 mm deep; eased 0.1 mm it still touches the same 4
+/// with the same normals (no curvature term is left out, no point joins or leaves: pressed 0.1 mm
+/// deeper instead, 8 points lying 0.07 mm below the face would join, which no first-order
+/// prediction includes). What the prediction misses is then the tissue's motion within the step:
+/// the linearisation holds the tissue still, the step lets the springs pull it after the tool.
+/// In one implicit step the contact springs (`h²k` each) act against the tissue's
+/// `M + (h² + hβ)K`; the surface points follow by a fraction of the move, and the actual change
+/// is that much smaller. Measured: −0.0682 N against −0.0800 N predicted, a ratio of 0.852. The
+/// tolerance keeps the direction and allows the ratio 0.7–1.0, twice the measured miss: above 1
+/// would be wrong in kind (the prediction holds the tissue still, and the tissue can only
+/// follow, never pull away harder than held still). The damping's share, `Linearisation::damping`,
+/// is checked in `incise_tool`'s unit tests.
 #[test]
 fn the_linearisation_predicts_the_next_frames_force() {
     let tool = "[[tools]]
 name = \"flat\"
 stiffness = 200.0
-outer = { shape = \"box\", half_extents = [0.004, 0.004, 0.002] }
+damping = 0.0
+outer = { shape = \"box\", half_extents = [0.005, 0.005, 0.002] }
 ";
     let mut a = cube(1e-3, tool);
     let mut b = cube(1e-3, tool);
@@ -1004,25 +1048,25 @@ outer = { shape = \"box\", half_extents = [0.004, 0.004, 0.002] }
     let last = last.unwrap();
     let lin = last.surgical.tools[0].linearisation;
     let held = [0.02, 0.02, surface - 0.0015 + 0.002];
-    let delta = [0.0, 0.0, -1e-4];
+    let delta = [0.0, 0.0, 1e-4];
     let moved = [held[0], held[1], held[2] + delta[2]];
     let same = drive(&mut a, at(0, held));
-    let deeper = drive(&mut b, at(0, moved));
+    let eased = drive(&mut b, at(0, moved));
     let drift = same.surgical.tools[0].force()[2] - lin.force[2];
-    let actual = deeper.surgical.tools[0].force()[2] - same.surgical.tools[0].force()[2];
+    let actual = eased.surgical.tools[0].force()[2] - same.surgical.tools[0].force()[2];
     let predicted = lin.extrapolate(delta, [0.0; 3]).0[2] - lin.force[2];
     println!(
-        "steady force {:.5} N on {} points (drift over the last frame {drift:.2e} N); 0.1 mm deeper: actual change {actual:.5} N, predicted {predicted:.5} N, ratio {:.3}; contact points {} and {}",
+        "steady force {:.5} N on {} points (drift over the last frame {drift:.2e} N); eased 0.1 mm: actual change {actual:.5} N, predicted {predicted:.5} N, ratio {:.3}; contact points {} and {}",
         lin.force[2],
         last.surgical.tools[0].contact_points,
         actual / predicted,
         same.surgical.tools[0].contact_points,
-        deeper.surgical.tools[0].contact_points
+        eased.surgical.tools[0].contact_points
     );
     assert!(drift.abs() < 0.01 * predicted.abs(), "not steady: the force drifts {drift} N a frame");
-    assert_eq!(same.surgical.tools[0].contact_points, deeper.surgical.tools[0].contact_points);
+    assert_eq!(same.surgical.tools[0].contact_points, eased.surgical.tools[0].contact_points);
     let ratio = actual / predicted;
-    assert!((0.8..=1.0).contains(&ratio), "actual {actual} N against predicted {predicted} N");
+    assert!((0.7..=1.0).contains(&ratio), "actual {actual} N against predicted {predicted} N");
 }
 
 /// Determinism across thread counts with tools: two simulations of a 12³-voxel block at level 0
@@ -1090,7 +1134,7 @@ fn tensor_mass_tetrahedra_are_pushed_and_cut() {
             Shape::new(Primitive::Sphere { radius: 0.01 }, [0.0; 3]).unwrap(),
         )),
         stiffness: 100.0,
-        damping: 0.0,
+        damping: None,
         cutting: Cutting::Remove,
         jaws: None,
         path: None,

@@ -438,7 +438,7 @@ impl Simulation {
                 }
                 Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
             };
-            Some(Box::new(Surgery::new(&config.tools, surface).map_err(build)?))
+            Some(Box::new(Surgery::new(&config.tools, surface, config.dt()).map_err(build)?))
         };
         Ok(Self { config, calibration, body, fixed, state, index: 0, surgery })
     }

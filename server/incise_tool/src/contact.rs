@@ -6,14 +6,25 @@
 //! [`EmbeddedSpring`] whose target is the
 //! point's projection on the shape's tangent plane), spread to the nodes by the point's
 //! embedding. The springs enter the implicit step's matrix, so a stiff contact is as stable as
-//! the tissue. Damping along the normal (`c`, on the point's velocity relative to the tool) is
-//! applied from the velocity at the start of the step, by moving the target: it lowers the
-//! force on approach and never turns it into a pull.
+//! the tissue. Damping along the normal, `c n nᵀ` on the point's velocity relative to the tool's
+//! material point there, is part of the same spring and integrated implicitly too: it damps the
+//! tissue's motion relative to the moving tool, never against the world (the scene's Rayleigh
+//! damping does not apply to the springs; see [`incise_fem::forcefield::springs`]).
 //!
 //! A per-point stiffness makes a broad contact, which touches many points, stiffer than a
 //! narrow one: under the same force a broad tool sinks in less. That is the pressure threshold
 //! of paper 1 §3 (Fig. 11): a sharp inner shape reaches the tissue only when the pressure is
 //! high enough.
+//!
+//! A point stays on the side of the shape it entered by. The push direction of a point inside is
+//! the shape's nearest-surface normal, except where that normal turned back, by more than 120°,
+//! since the last frame (the point went past a box's middle, and the opposite face is now the
+//! nearest, or a point carried by a fast tool is nearer the back face): the point is then pushed
+//! on along its last direction, to where a ray that way leaves the shape. Without that memory a
+//! flat tool pressed more than half its thickness into held tissue would find its face's normals
+//! cancel, and a membrane carried by a jump would recoil through the tool. A turn of 90° is left
+//! to the nearest normal: a point a blade's edge met is pushed to the blade's nearer side, so the
+//! blade slides between the layers it separates instead of ploughing them ahead of its edge.
 //!
 //! A tool that moves farther than half its thinnest dimension in a frame could jump over a thin
 //! membrane. The motion is therefore sampled at sub-poses closer than that, and a point the tool
@@ -21,7 +32,8 @@
 //! surface along the motion, with the depth it would have had: the tissue is carried along,
 //! not tunnelled through.
 //!
-//! The force the tissue puts on the tool is the negated sum of the springs' forces; its
+//! The force the tissue puts on the tool is the negated sum of the springs' forces, damping
+//! included; its
 //! derivative with respect to the tool's pose ([`Linearisation`]) follows from the springs'
 //! targets moving with the tool: `∂F/∂t = −Σ S`, `∂F/∂θ = Σ S [r]×` (`r` the target's lever about
 //! the tool's origin). It leaves out the shape's curvature and the tissue's response within a
@@ -42,20 +54,6 @@ pub struct ContactSettings {
     pub damping: f64,
 }
 
-/// What contact needs of a surface point once it is found in contact: its velocity (m/s) and
-/// its embedding in the model. Asked only for the few points in contact, so that a large
-/// surface is scanned by position alone.
-pub trait PointDetails {
-    /// The velocity and embedding of surface vertex `id`.
-    fn details(&self, id: u32) -> (Vec3, EmbeddedPoint);
-}
-
-impl<F: Fn(u32) -> (Vec3, EmbeddedPoint)> PointDetails for F {
-    fn details(&self, id: u32) -> (Vec3, EmbeddedPoint) {
-        self(id)
-    }
-}
-
 /// One point in contact.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ContactPoint {
@@ -68,7 +66,47 @@ pub struct ContactPoint {
     pub depth: f64,
     /// Whether the tool passed over it between the two frames (found by the swept test).
     pub swept: bool,
+    /// `normal` in the tool's frame: what the next frame remembers of this point.
+    pub local_normal: Vec3,
 }
+
+/// The push directions of the points in contact at the last frame, in the tool's frame, by
+/// surface vertex: what keeps a point on the side of the shape it entered by.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ContactMemory {
+    /// `(vertex, direction)`, sorted by vertex.
+    directions: Vec<(u32, Vec3)>,
+}
+
+impl ContactMemory {
+    /// The directions of `contact`'s points.
+    #[must_use]
+    pub fn of(contact: &Contact) -> Self {
+        let mut directions: Vec<(u32, Vec3)> =
+            contact.points.iter().map(|c| (c.id, c.local_normal)).collect();
+        directions.sort_unstable_by_key(|d| d.0);
+        Self { directions }
+    }
+
+    /// The direction vertex `id` was pushed in at the last frame.
+    #[must_use]
+    pub fn direction(&self, id: u32) -> Option<Vec3> {
+        let i = self.directions.binary_search_by_key(&id, |d| d.0).ok()?;
+        Some(self.directions[i].1)
+    }
+
+    /// Forgets the vertices `ids` (their slots now hold new vertices).
+    pub fn forget(&mut self, ids: &[u32]) {
+        if !ids.is_empty() {
+            let gone: std::collections::BTreeSet<u32> = ids.iter().copied().collect();
+            self.directions.retain(|d| !gone.contains(&d.0));
+        }
+    }
+}
+
+/// The cosine of the largest turn of a point's nearest normal between two frames that is taken
+/// as the point moving over the shape rather than through it: 120°.
+const PERSIST_COS: f64 = -0.5;
 
 /// The contact of one tool with the surface at one frame.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -81,19 +119,21 @@ pub struct Contact {
 
 /// Finds the surface points in contact with `shape` at `pose` and makes their springs.
 ///
-/// `points` are the surface vertices' ids and deformed positions (m, grid frame); `details`
-/// gives the velocity and embedding of those in contact. `previous` is the tool's pose at the
+/// `points` are the surface vertices' ids and deformed positions (m, grid frame); `embedding`
+/// gives the embedding in the model of those in contact (asked only for the few in contact, so
+/// that a large surface is scanned by position alone). `previous` is the tool's pose at the
 /// previous frame and `dt` the time between the two (for the swept test and the tool's
-/// velocity); `None` on the first frame. Points are visited in the order given, so the result is
-/// deterministic.
+/// velocity); `None` on the first frame. `memory` holds the push directions of the last frame's
+/// contact. Points are visited in the order given, so the result is deterministic.
 #[must_use]
 pub fn detect(
     shape: &Shape,
     pose: &Pose,
     previous: Option<(&Pose, f64)>,
+    memory: &ContactMemory,
     settings: &ContactSettings,
     points: impl IntoIterator<Item = (u32, Vec3)>,
-    details: &impl PointDetails,
+    embedding: impl Fn(u32) -> EmbeddedPoint,
 ) -> Contact {
     let (lo, hi) = shape.grid_bounds(pose);
     let sweep = previous.map(|(from, dt)| Sweep::new(shape, from, pose, dt));
@@ -112,25 +152,25 @@ pub fn detect(
         let q = pose.tool_from_grid(p);
         let (phi, n_tool) = shape.distance(q);
         let found = if phi < 0.0 {
-            Some((pose.rotate(n_tool), -phi, false))
+            let kept = memory
+                .direction(id)
+                .filter(|last| dot(last, &n_tool) < PERSIST_COS)
+                .and_then(|last| shape.exit_along(q, last).map(|depth| (last, depth)));
+            let (local, depth) = kept.unwrap_or((n_tool, -phi));
+            Some((pose.rotate(local), local, depth, false))
         } else {
-            sweep.as_ref().and_then(|s| s.passed_over(shape, pose, p)).map(|(n, d)| (n, d, true))
+            sweep.as_ref().and_then(|s| s.passed_over(shape, pose, p)).map(|(n, d)| {
+                let local = mul_vec(&transpose(pose.matrix()), &n);
+                (n, local, d, true)
+            })
         };
-        let Some((normal, depth, swept)) = found else { continue };
-        let (velocity, embedding) = details.details(id);
+        let Some((normal, local_normal, depth, swept)) = found else { continue };
         let tool_velocity = sweep.as_ref().map_or([0.0; 3], |s| s.velocity_at(pose, p));
-        let approach = dot(&std::array::from_fn(|k| velocity[k] - tool_velocity[k]), &normal);
-        // Damping from the start-of-step velocity moves the target; never past the point, so it
-        // only softens the push.
-        let pushed = if settings.stiffness > 0.0 {
-            (depth - settings.damping * approach / settings.stiffness).max(0.0)
-        } else {
-            0.0
-        };
-        let target = std::array::from_fn(|k| p[k] + pushed * normal[k]);
-        let stiffness = outer(normal, settings.stiffness);
-        contact.springs.push(EmbeddedSpring { point: embedding, stiffness, target });
-        contact.points.push(ContactPoint { id, normal, depth, swept });
+        let target = std::array::from_fn(|k| p[k] + depth * normal[k]);
+        let spring = EmbeddedSpring::new(embedding(id), outer(normal, settings.stiffness), target)
+            .damped(outer(normal, settings.damping), tool_velocity);
+        contact.springs.push(spring);
+        contact.points.push(ContactPoint { id, normal, depth, swept, local_normal });
     }
     contact
 }
@@ -251,24 +291,35 @@ pub struct Linearisation {
     /// `∂(force, torque)/∂(translation, rotation)`: rows force x, y, z then torque x, y, z;
     /// columns a translation (m) then a small rotation vector (rad) about `origin`.
     pub jacobian: [[f64; 6]; 6],
+    /// `∂force/∂(tool velocity)` (N·s/m): the contact's damping seen by a tool translating
+    /// faster or slower than it did (`−Σ C`; the tool's turning rate left out).
+    pub damping: Mat3,
 }
 
 impl Linearisation {
     /// No contact.
     #[must_use]
     pub fn none(origin: Vec3) -> Self {
-        Self { origin, force: [0.0; 3], torque: [0.0; 3], jacobian: [[0.0; 6]; 6] }
+        Self {
+            origin,
+            force: [0.0; 3],
+            torque: [0.0; 3],
+            jacobian: [[0.0; 6]; 6],
+            damping: [[0.0; 3]; 3],
+        }
     }
 
     /// The linearisation of `springs` (all attached to the tool: their targets move with it) at
-    /// node positions `x`, for a tool whose origin is at `origin`.
+    /// node positions `x` and velocities `v`, for a tool whose origin is at `origin`.
     #[must_use]
-    pub fn of(springs: &[EmbeddedSpring], x: &[Vec3], origin: Vec3) -> Self {
+    pub fn of(springs: &[EmbeddedSpring], x: &[Vec3], v: &[Vec3], origin: Vec3) -> Self {
         let mut lin = Self::none(origin);
         for s in springs {
             let p = s.point.position(x);
-            // The force on the tool at this spring: S (p − t).
-            let f = mul_vec(&s.stiffness, &std::array::from_fn(|k| p[k] - s.target[k]));
+            // The force on the tool at this spring: S (p − t) + C (ṗ − w).
+            let stretch = mul_vec(&s.stiffness, &std::array::from_fn(|k| p[k] - s.target[k]));
+            let damping = s.damping_force(v);
+            let f: Vec3 = std::array::from_fn(|k| stretch[k] + damping[k]);
             let r: Vec3 = std::array::from_fn(|k| s.target[k] - origin[k]);
             let m = cross(&r, &f);
             let rx = skew(r);
@@ -281,6 +332,7 @@ impl Linearisation {
                 lin.force[a] += f[a];
                 lin.torque[a] += m[a];
                 for b in 0..3 {
+                    lin.damping[a][b] -= s.damping[a][b];
                     lin.jacobian[a][b] -= s.stiffness[a][b];
                     lin.jacobian[a][3 + b] += s_rx[a][b];
                     lin.jacobian[3 + a][b] -= rx_s[a][b];
@@ -333,9 +385,9 @@ mod tests {
             .collect()
     }
 
-    /// Points at rest, each its own node.
-    fn still(id: u32) -> (Vec3, EmbeddedPoint) {
-        ([0.0; 3], EmbeddedPoint::node(id))
+    /// Points that are each their own node.
+    fn still(id: u32) -> EmbeddedPoint {
+        EmbeddedPoint::node(id)
     }
 
     fn ball() -> Shape {
@@ -345,14 +397,78 @@ mod tests {
     const SETTINGS: ContactSettings = ContactSettings { stiffness: 200.0, damping: 0.0 };
 
     #[test]
+    fn the_force_includes_the_damping_and_its_derivative_in_the_tool_velocity_is_reported() {
+        let points = patch(21, 0.001);
+        let pose = Pose::at([0.0, 0.0, 0.004]);
+        let from = Pose::at([0.0, 0.0, 0.0042]);
+        let damped = ContactSettings { stiffness: 200.0, damping: 0.3 };
+        let memory = ContactMemory::default();
+        let found = |settings: &ContactSettings| {
+            detect(
+                &ball(),
+                &pose,
+                Some((&from, 1e-3)),
+                &memory,
+                settings,
+                points.iter().copied(),
+                still,
+            )
+        };
+        let (plain, contact) = (found(&SETTINGS), found(&damped));
+        let x: Vec<Vec3> = points.iter().map(|p| p.1).collect();
+        // The points move down at 0.1 m/s, the tool at 0.2 m/s: it closes on them at 0.1 m/s.
+        let v = vec![[0.0, 0.0, -0.1]; x.len()];
+        let without = Linearisation::of(&plain.springs, &x, &v, pose.position());
+        let with = Linearisation::of(&contact.springs, &x, &v, pose.position());
+        // The stiffness part of the pose derivative is the same (the rotation block turns the
+        // whole force's lever, damping included).
+        for r in 0..6 {
+            assert_eq!(without.jacobian[r][..3], with.jacobian[r][..3], "row {r}");
+        }
+        // The extra force is Σ c n nᵀ (v − w) on the tool: up, against the approach.
+        let mut expected = [0.0; 3];
+        for (s, c) in contact.springs.iter().zip(&contact.points) {
+            let closing = 0.1 * c.normal[2];
+            for k in 0..3 {
+                expected[k] += 0.3 * c.normal[k] * closing;
+            }
+            assert!((s.velocity[2] + 0.2).abs() < 1e-9, "the tool's velocity at the point");
+        }
+        for k in 0..3 {
+            assert!((with.force[k] - without.force[k] - expected[k]).abs() < 1e-12);
+        }
+        assert!(with.force[2] > without.force[2]);
+        // ∂F/∂w: a tool 1 mm/s faster into the tissue (δw = −1 mm/s along z) feels D·δw more.
+        let faster: Vec<EmbeddedSpring> = contact
+            .springs
+            .iter()
+            .map(|s| EmbeddedSpring { velocity: [0.0, 0.0, s.velocity[2] - 1e-3], ..*s })
+            .collect();
+        let moved = Linearisation::of(&faster, &x, &v, pose.position());
+        for k in 0..3 {
+            let predicted = -with.damping[k][2] * 1e-3;
+            assert!((moved.force[k] - with.force[k] - predicted).abs() < 1e-12, "{k}");
+        }
+    }
+
+    #[test]
     fn a_pressed_ball_pushes_the_points_inside_it_along_its_normal() {
         let points = patch(21, 0.001);
         let pose = Pose::at([0.0, 0.0, 0.004]);
-        let contact = detect(&ball(), &pose, None, &SETTINGS, points.iter().copied(), &still);
+        let contact = detect(
+            &ball(),
+            &pose,
+            None,
+            &ContactMemory::default(),
+            &SETTINGS,
+            points.iter().copied(),
+            still,
+        );
         // The lattice points strictly within √(5² − 4²) = 3 mm of the axis: i² + j² < 9.
         assert_eq!(contact.points.len(), 25);
         let x: Vec<Vec3> = points.iter().map(|p| p.1).collect();
-        let lin = Linearisation::of(&contact.springs, &x, pose.position());
+        let lin =
+            Linearisation::of(&contact.springs, &x, &vec![[0.0; 3]; x.len()], pose.position());
         // The tissue pushes the tool up (+z), symmetric in x and y.
         assert!(lin.force[2] > 0.0 && lin.force[0].abs() < 1e-12 && lin.force[1].abs() < 1e-12);
         let centre = contact.points.iter().find(|c| c.id == 220).unwrap();
@@ -368,10 +484,19 @@ mod tests {
         let q = [0.99, 0.1, 0.05, 0.0f64];
         let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
         let pose = Pose::new([0.001, 0.0, 0.0035], q.map(|c| c / norm)).unwrap();
-        let contact = detect(&ball(), &pose, None, &SETTINGS, points.iter().copied(), &still);
+        let contact = detect(
+            &ball(),
+            &pose,
+            None,
+            &ContactMemory::default(),
+            &SETTINGS,
+            points.iter().copied(),
+            still,
+        );
         assert!(contact.points.len() > 10);
         let x: Vec<Vec3> = points.iter().map(|p| p.1).collect();
-        let lin = Linearisation::of(&contact.springs, &x, pose.position());
+        let lin =
+            Linearisation::of(&contact.springs, &x, &vec![[0.0; 3]; x.len()], pose.position());
         let error = |eps: f64| {
             let dt = [1e-4 * eps, -5e-5 * eps, 2e-5 * eps];
             let dtheta = [1e-3 * eps, -2e-3 * eps, 5e-4 * eps];
@@ -384,7 +509,7 @@ mod tests {
                     ..*s
                 })
                 .collect();
-            let exact = Linearisation::of(&carried, &x, moved.position());
+            let exact = Linearisation::of(&carried, &x, &vec![[0.0; 3]; x.len()], moved.position());
             let (f, m) = lin.extrapolate(dt, dtheta);
             let norm = |v: [f64; 3]| v.iter().map(|c| c * c).sum::<f64>().sqrt();
             let change = norm(std::array::from_fn(|k| exact.force[k] - lin.force[k]))
@@ -407,10 +532,25 @@ mod tests {
             Shape::new(Primitive::Cuboid { half_extents: [0.01, 0.01, 0.0005] }, [0.0; 3]).unwrap();
         let from = Pose::at([0.0, 0.0, 0.02]);
         let to = Pose::at([0.0, 0.0, -0.03]);
-        let jumped = detect(&slab, &to, None, &SETTINGS, points.iter().copied(), &still);
+        let jumped = detect(
+            &slab,
+            &to,
+            None,
+            &ContactMemory::default(),
+            &SETTINGS,
+            points.iter().copied(),
+            still,
+        );
         assert!(jumped.points.is_empty(), "without the sweep nothing is in contact");
-        let swept =
-            detect(&slab, &to, Some((&from, 1e-3)), &SETTINGS, points.iter().copied(), &still);
+        let swept = detect(
+            &slab,
+            &to,
+            Some((&from, 1e-3)),
+            &ContactMemory::default(),
+            &SETTINGS,
+            points.iter().copied(),
+            still,
+        );
         assert_eq!(swept.points.len(), points.len());
         for c in &swept.points {
             assert!(c.swept && c.normal == [0.0, 0.0, -1.0]);

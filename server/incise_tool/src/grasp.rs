@@ -8,7 +8,8 @@
 //! the tool's frame when the jaws closed, so the tissue moves with the tool. The grasp lets go
 //! when the angle rises above `open_above`. The two thresholds differ so that a trembling hand
 //! on the gripper does not grab and drop the tissue at every frame. The springs are tissue
-//! forces like the contact's, and their negated sum is part of the tool's force.
+//! forces like the contact's, damped (`c I`) relative to the jaws' motion, and their negated sum
+//! is part of the tool's force.
 
 use crate::pose::Pose;
 use incise_fem::forcefield::springs::{EmbeddedPoint, EmbeddedSpring};
@@ -116,21 +117,33 @@ impl Grasp {
         self.held.retain(|h| exists(h.id));
     }
 
-    /// The holding springs at `pose`; `embedding` gives a held vertex's embedding.
+    /// The holding springs at `pose`, damped by `damping` (N·s/m per point) relative to the
+    /// anchors' motion since `previous` (the pose `dt` seconds before; `None`: at rest);
+    /// `embedding` gives a held vertex's embedding.
     #[must_use]
     pub fn springs(
         &self,
         jaws: &Jaws,
         pose: &Pose,
+        previous: Option<(&Pose, f64)>,
+        damping: f64,
         embedding: impl Fn(u32) -> Option<EmbeddedPoint>,
     ) -> Vec<EmbeddedSpring> {
-        let k = jaws.stiffness;
-        let stiffness = [[k, 0.0, 0.0], [0.0, k, 0.0], [0.0, 0.0, k]];
+        let diagonal = |c: f64| [[c, 0.0, 0.0], [0.0, c, 0.0], [0.0, 0.0, c]];
+        let (stiffness, damping) = (diagonal(jaws.stiffness), diagonal(damping));
         self.held
             .iter()
             .filter_map(|h| {
                 let point = embedding(h.id)?;
-                Some(EmbeddedSpring { point, stiffness, target: pose.grid_from_tool(h.anchor) })
+                let target = pose.grid_from_tool(h.anchor);
+                let velocity = match previous {
+                    Some((before, dt)) if dt > 0.0 => {
+                        let was = before.grid_from_tool(h.anchor);
+                        std::array::from_fn(|k| (target[k] - was[k]) / dt)
+                    }
+                    _ => [0.0; 3],
+                };
+                Some(EmbeddedSpring::new(point, stiffness, target).damped(damping, velocity))
             })
             .collect()
     }
@@ -162,7 +175,7 @@ mod tests {
         assert_eq!(grasp.update(&JAWS, &pose, 0.2, true, points()), GraspEvent::None);
         // Moving the tool drags the anchors with it.
         let moved = Pose::at([0.001, 0.0, 0.0]);
-        let springs = grasp.springs(&JAWS, &moved, |id| Some(EmbeddedPoint::node(id)));
+        let springs = grasp.springs(&JAWS, &moved, None, 0.0, |id| Some(EmbeddedPoint::node(id)));
         assert_eq!(springs.len(), 7);
         assert!(springs.iter().all(|s| (s.target[0] - 0.001).abs() < 1e-15));
         assert_eq!(grasp.update(&JAWS, &pose, 0.4, true, points()), GraspEvent::Opened(7));

@@ -22,7 +22,7 @@ pub mod path;
 pub mod pose;
 pub mod shape;
 
-pub use contact::{Contact, ContactPoint, ContactSettings, Linearisation, PointDetails, detect};
+pub use contact::{Contact, ContactMemory, ContactPoint, ContactSettings, Linearisation, detect};
 pub use cut::{SweptBlade, flood};
 pub use grasp::{Grasp, GraspEvent, Jaws};
 pub use path::{PathError, ToolPath, Waypoint};

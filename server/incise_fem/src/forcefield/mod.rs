@@ -20,6 +20,12 @@ use incise_math::mat3::Mat3;
 /// with. A contact's stiffness enters the implicit matrix through [`ForceField::add_stiffness_times`]
 /// and [`ForceField::add_diagonal_blocks`], like the tissue's.
 ///
+/// The integrator's Rayleigh stiffness damping `β K` is the tissue's own damping, against the
+/// world. A field whose damping must act relative to something moving (a tool's contact and grasp
+/// springs: their targets travel with the tool) opts out ([`ForceField::rayleigh_damped`]) and
+/// brings its own viscous term `−C (v − w)` through [`ForceField::add_damping_forces`], which the
+/// implicit step integrates like the stiffness (`h C` in its matrix).
+///
 /// A field is linearised at the positions of its last [`ForceField::update`]: an integrator calls
 /// it once per step (or Newton iteration) before asking for forces or products.
 ///
@@ -58,6 +64,28 @@ pub trait ForceField: Sync {
     /// preconditioner's share): an approximation is allowed, as long as it stays symmetric
     /// positive semi-definite.
     fn add_diagonal_blocks(&self, x: &[Vec3], blocks: &mut [Mat3]);
+
+    /// Whether the integrator's Rayleigh stiffness damping (`β K`) applies to this field: it does
+    /// to the tissue's elasticity (the default).
+    fn rayleigh_damped(&self) -> bool {
+        true
+    }
+
+    /// `f += −C (v − w)`: the field's own viscous forces at node velocities `v`, with `C` its
+    /// damping matrix and `w` the velocities it damps toward (none by default).
+    fn add_damping_forces(&self, v: &[Vec3], f: &mut [Vec3]) {
+        let _ = (v, f);
+    }
+
+    /// `out += scale · C p`.
+    fn add_damping_times(&self, scale: f64, p: &[Vec3], out: &mut [Vec3]) {
+        let _ = (scale, p, out);
+    }
+
+    /// `blocks[n] += C_nn`, the diagonal blocks of the damping matrix.
+    fn add_damping_diagonal_blocks(&self, blocks: &mut [Mat3]) {
+        let _ = blocks;
+    }
 
     /// The executor the field runs its loops on; an integrator stepping it runs its own loops
     /// there too.

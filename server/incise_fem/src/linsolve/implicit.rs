@@ -1,7 +1,9 @@
 //! The linear system of an implicit step and the solver that keeps its state between steps.
 //!
-//! Backward Euler solves `(a·M + b·K) Δv = rhs` every step, with `a = 1 + hα`, `b = hβ + h²` and
-//! `rhs = h (node + Σ f(x) + s·K v)`, `s = −(β + h)` ([`StepRhs`]: the one definition of the
+//! Backward Euler solves `(a·M + b·K + h²·K_own + h·C) Δv = rhs` every step, with `a = 1 + hα`,
+//! `b = hβ + h²` and `rhs = h (node + Σ f(x) + s·K v − h·K_own v − C (v − w))`, `s = −(β + h)`:
+//! `K` the fields that take the Rayleigh damping, `K_own` and `C` those with damping of their own
+//! ([`ForceField::rayleigh_damped`]) ([`StepRhs`]: the one definition of the
 //! right-hand side; the lockstep CG forms its element terms in its first pass, the other solvers
 //! through [`StepRhs::assemble`]). [`SystemSolver`] owns what a solver carries from one step to
 //! the next: block-Jacobi blocks and the lockstep workspace, a Cholesky factor with its renewal
@@ -44,7 +46,8 @@ pub(crate) struct StepRhs<'a> {
     pub node: &'a [Vec3],
     /// The time step.
     pub h: f64,
-    /// The stiffness term's factor, `−(β + h)`.
+    /// The stiffness term's factor, `−(β + h)`, for the fields that take the Rayleigh damping
+    /// (`−h` for the others).
     pub s: f64,
     /// CG stops at `‖r‖ ≤ tolerance · max(‖b‖, reference)` (see [`solve_against`]).
     pub reference: f64,
@@ -56,7 +59,9 @@ impl StepRhs<'_> {
         out.clear();
         out.extend_from_slice(self.node);
         for field in fields {
-            field.add_forces_and_stiffness_times(self.x, self.s, self.v, out);
+            let s = if field.rayleigh_damped() { self.s } else { -self.h };
+            field.add_forces_and_stiffness_times(self.x, s, self.v, out);
+            field.add_damping_forces(self.v, out);
         }
         for r in out.iter_mut() {
             for k in 0..3 {
@@ -66,7 +71,7 @@ impl StepRhs<'_> {
     }
 }
 
-/// The matrix `a·M + b·K` of a step.
+/// The matrix `a·M + b·K + h²·K_own + h·C` of a step (see the module's doc).
 pub(crate) struct StepSystem<'a, 'f> {
     pub mass: &'a dyn Mass,
     /// Whether `M` is the consistent mass (else lumped).
@@ -102,7 +107,9 @@ impl StepSystem<'_, '_> {
             }
         }
         for field in self.fields {
-            field.add_stiffness_times(self.x, self.b, p, out);
+            let b = if field.rayleigh_damped() { self.b } else { self.h * self.h };
+            field.add_stiffness_times(self.x, b, p, out);
+            field.add_damping_times(self.h, p, out);
         }
     }
 }
@@ -365,7 +372,7 @@ impl SystemSolver {
                 let mass = mass_diagonal(system);
                 let pre = match hexahedra {
                     Some((model, ff)) => preconditioner(model, ff, &mass, a, b),
-                    None => field_preconditioner(system.fields, rhs.x, &mass, a, b),
+                    None => field_preconditioner(system.fields, rhs.x, &mass, a, b, system.h),
                 };
                 solve_against(
                     apply,

@@ -43,24 +43,32 @@ pub(crate) fn preconditioner_into(
     });
 }
 
-/// Block-Jacobi preconditioner of `a·M + b·K` for any set of force fields: the fields' diagonal
-/// blocks at `x` summed, then per node `b·K_nn + a·m·I` inverted.
+/// Block-Jacobi preconditioner of a step's matrix for any set of force fields (see
+/// [`crate::linsolve::implicit`]): per node, `a·m·I + b·K_nn + h²·K_own,nn + h·C_nn` inverted, the
+/// fields' diagonal blocks taken at `x`.
 pub(crate) fn field_preconditioner(
     fields: &[&mut dyn ForceField],
     x: &[Vec3],
     mass: &[f64],
     a: f64,
     b: f64,
+    h: f64,
 ) -> Vec<Mat3> {
-    let mut blocks = vec![[[0.0; 3]; 3]; mass.len()];
+    let zero = || vec![[[0.0; 3]; 3]; mass.len()];
+    let (mut blocks, mut own, mut damping) = (zero(), zero(), zero());
     for field in fields {
-        field.add_diagonal_blocks(x, &mut blocks);
+        if field.rayleigh_damped() {
+            field.add_diagonal_blocks(x, &mut blocks);
+        } else {
+            field.add_diagonal_blocks(x, &mut own);
+        }
+        field.add_damping_diagonal_blocks(&mut damping);
     }
-    for (k, &m) in blocks.iter_mut().zip(mass) {
+    for (((k, o), c), &m) in blocks.iter_mut().zip(&own).zip(&damping).zip(mass) {
         let mut blk = [[0.0; 3]; 3];
         for i in 0..3 {
             for j in 0..3 {
-                blk[i][j] = b * k[i][j];
+                blk[i][j] = b * k[i][j] + h * h * o[i][j] + h * c[i][j];
             }
             blk[i][i] += a * m;
         }

@@ -156,6 +156,13 @@ impl CentralDifference {
             field.update(x);
             field.add_forces(x, &mut f);
         }
+        // A field with damping of its own (a tool's springs) damps the velocity of the last step.
+        if fields.iter().any(|field| !field.rayleigh_damped()) {
+            let v = self.velocities(x);
+            for field in fields.iter() {
+                field.add_damping_forces(&v, &mut f);
+            }
+        }
         self.advance(mass.lumped(), &f, fixed, x);
     }
 

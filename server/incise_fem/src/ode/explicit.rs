@@ -40,6 +40,7 @@ pub fn explicit_step_fields(
     for field in fields.iter_mut() {
         field.update(&state.x);
         field.add_forces(&state.x, &mut f);
+        field.add_damping_forces(&state.v, &mut f);
     }
     for i in 0..n {
         if fixed.is_fixed(i) || lumped[i] <= 0.0 {

@@ -4,7 +4,7 @@
 //! [[tools]]
 //! name = "scalpel"
 //! stiffness = 400.0            # N/m per surface point in contact
-//! damping = 0.02               # N·s/m per point, along the normal
+//! damping = 0.02               # N·s/m per point, along the normal (default: stiffness × dt)
 //! cutting = "remove"           # "off" (default), "remove" (voxels), "separate" (links)
 //! outer = { shape = "capsule", radius = 0.002, length = 0.05 }
 //! inner = { shape = "blade", length = 0.004, height = 0.003, thickness = 0.001 }
@@ -41,8 +41,13 @@ pub struct ToolSpec {
     pub inner: Option<ShapeSpec>,
     /// Penalty stiffness per surface point in contact (N/m, `stiffness`).
     pub stiffness: f64,
-    /// Damping per surface point along the contact normal (N·s/m, `damping`).
-    pub damping: f64,
+    /// Damping per surface point along the contact normal, on its velocity relative to the
+    /// tool (N·s/m, `damping`). Without the key, `stiffness × dt` (the jaws' stiffness for a
+    /// grasp). A stiff contact resolves a penetration `d` within one implicit step and leaves the
+    /// point moving off at `d / dt`, which throws it out of contact and lets it fall back, frame
+    /// after frame; damping `k·dt` closes half the penetration per step without overshoot, so
+    /// the contact settles, and it is small beside the contact's stiffness at haptic rates.
+    pub damping: Option<f64>,
     /// Whether and how it cuts (`cutting`).
     pub cutting: Cutting,
     /// Its jaws, for a grasper (`[tools.jaws]`).
@@ -160,7 +165,12 @@ impl Checker<'_> {
             }
             let stiffness =
                 self.within(&raw_tool.stiffness, &at("stiffness"), (0.0, MAX_STIFFNESS), "N/m")?;
-            let damping = self.non_negative(raw_tool.damping.as_ref(), &at("damping"), 0.0)?;
+            let damping = match raw_tool.damping.as_ref() {
+                Some(_) => {
+                    Some(self.non_negative(raw_tool.damping.as_ref(), &at("damping"), 0.0)?)
+                }
+                None => None,
+            };
             let outer = self.shape(&raw_tool.outer, &at("outer"))?;
             let inner = raw_tool.inner.as_ref().map(|s| self.shape(s, &at("inner"))).transpose()?;
             let cutting = match raw_tool.cutting.as_ref().map(|c| (c.span(), c.get_ref().as_str()))

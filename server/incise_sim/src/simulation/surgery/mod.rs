@@ -23,8 +23,8 @@ use incise_grid::GridEdit;
 use incise_math::Vec3;
 use incise_surface::{SurfaceChanges, SurfaceOptions};
 use incise_tool::{
-    Contact, ContactSettings, Grasp, GraspEvent, Linearisation, Pose, Shape, SweptBlade, ToolPose,
-    detect,
+    Contact, ContactMemory, ContactSettings, Grasp, GraspEvent, Linearisation, Pose, Shape,
+    SweptBlade, ToolPose, detect,
 };
 use std::ops::Range;
 use std::time::Instant;
@@ -107,6 +107,13 @@ pub(crate) struct ToolRig {
     pose: Option<ToolPose>,
     /// Its pose at the previous step, for the swept tests.
     previous: Option<Pose>,
+    /// Its contact's stiffness and damping (the damping resolved from the time step when the
+    /// tool names none).
+    contact: ContactSettings,
+    /// Its grasp's damping per point (N·s/m).
+    grasp_damping: f64,
+    /// The push directions of its last contact.
+    memory: ContactMemory,
     grasp: Grasp,
 }
 
@@ -114,9 +121,8 @@ pub(crate) struct ToolRig {
 pub(crate) struct Surgery {
     rigs: Vec<ToolRig>,
     surface: OrganSurface,
-    /// Deformed surface positions and velocities at the start of the step (per vertex slot).
+    /// Deformed surface positions at the start of the step (per vertex slot).
     positions: Vec<Vec3>,
-    velocities: Vec<Vec3>,
 }
 
 /// The springs of the step's tools: all of them as one field, and which belong to which tool.
@@ -126,8 +132,17 @@ pub(crate) struct ToolSprings {
 }
 
 impl Surgery {
-    /// The tools of `tools` on `surface`; refuses a shape the scene reader did not load.
-    pub(crate) fn new(tools: &[ToolSpec], surface: OrganSurface) -> Result<Self, String> {
+    /// The tools forget what they remembered of surface vertex slots a re-mesh gave to new
+    /// vertices.
+    fn forget_reused(&mut self, changes: &SurfaceChanges) {
+        for rig in &mut self.rigs {
+            rig.memory.forget(&changes.vertices_added);
+        }
+    }
+
+    /// The tools of `tools` on `surface`, in a scene stepped at `dt` (s); refuses a shape the
+    /// scene reader did not load.
+    pub(crate) fn new(tools: &[ToolSpec], surface: OrganSurface, dt: f64) -> Result<Self, String> {
         let shape = |s: &ShapeSpec, name: &str, which: &str| match s {
             ShapeSpec::Shape(shape) => Ok(shape.clone()),
             ShapeSpec::Mesh { path, .. } => Err(format!(
@@ -144,11 +159,19 @@ impl Surgery {
                     spec: t.clone(),
                     pose: None,
                     previous: None,
+                    contact: ContactSettings {
+                        stiffness: t.stiffness,
+                        damping: t.damping.unwrap_or(dt * t.stiffness),
+                    },
+                    grasp_damping: t
+                        .damping
+                        .unwrap_or_else(|| t.jaws.map_or(0.0, |j| dt * j.stiffness)),
+                    memory: ContactMemory::default(),
                     grasp: Grasp::default(),
                 })
             })
             .collect::<Result<Vec<_>, String>>()?;
-        Ok(Self { rigs, surface, positions: Vec::new(), velocities: Vec::new() })
+        Ok(Self { rigs, surface, positions: Vec::new() })
     }
 
     /// The tools' count.
@@ -274,7 +297,8 @@ impl Simulation {
 
         let mut springs: Vec<EmbeddedSpring> = Vec::new();
         let mut ranges = Vec::with_capacity(surgery.rigs.len());
-        for (i, (rig, contact)) in surgery.rigs.iter().zip(contacts).enumerate() {
+        for (i, (rig, contact)) in surgery.rigs.iter_mut().zip(contacts).enumerate() {
+            rig.memory = ContactMemory::of(&contact);
             let Some(pose) = rig.pose else {
                 ranges.push(None);
                 continue;
@@ -285,7 +309,8 @@ impl Simulation {
             springs.extend(contact.springs);
             if let Some(jaws) = &rig.spec.jaws {
                 let surface = &surgery.surface;
-                let held = rig.grasp.springs(jaws, &pose.pose, |v| {
+                let previous = rig.previous.as_ref().map(|p| (p, self.config.dt()));
+                let held = rig.grasp.springs(jaws, &pose.pose, previous, rig.grasp_damping, |v| {
                     surface.is_live(v).then(|| surface.embedding(v))
                 });
                 frame.tools[i].held_points = held.len();
@@ -303,37 +328,34 @@ impl Simulation {
         let all = springs.field.springs();
         for (tool, range) in frame.tools.iter_mut().zip(&springs.ranges) {
             if let (Some(pose), Some(range)) = (tool.pose, range) {
-                tool.linearisation =
-                    Linearisation::of(&all[range.clone()], &self.state.x, pose.pose.position());
+                let (x, v, origin) = (&self.state.x, &self.state.v, pose.pose.position());
+                tool.linearisation = Linearisation::of(&all[range.clone()], x, v, origin);
             }
         }
     }
 
-    /// The surface's deformed positions and velocities from the state.
+    /// The surface's deformed positions from the state.
     fn deform_surface(&self, surgery: &mut Surgery) {
-        let model = self.model();
-        let Surgery { surface, positions, velocities, .. } = surgery;
-        surface.deform(&self.state.x, model, positions);
-        surface.deform(&self.state.v, model, velocities);
+        let Surgery { surface, positions, .. } = surgery;
+        surface.deform(&self.state.x, self.model(), positions);
     }
 
     /// Each tool's contact (empty for a tool without a pose).
     fn contacts(surgery: &Surgery, dt: f64) -> Vec<Contact> {
-        let Surgery { surface, positions, velocities, rigs } = surgery;
+        let Surgery { surface, positions, rigs } = surgery;
         let live = surface.live_vertices();
         rigs.iter()
             .map(|rig| {
                 let Some(pose) = rig.pose else { return Contact::default() };
-                let settings =
-                    ContactSettings { stiffness: rig.spec.stiffness, damping: rig.spec.damping };
                 let previous = rig.previous.as_ref().map(|p| (p, dt));
                 detect(
                     &rig.outer,
                     &pose.pose,
                     previous,
-                    &settings,
+                    &rig.memory,
+                    &rig.contact,
                     live.iter().map(|&v| (v, positions[v as usize])),
-                    &|v: u32| (velocities[v as usize], surface.embedding(v)),
+                    |v: u32| surface.embedding(v),
                 )
             })
             .collect()
@@ -425,6 +447,7 @@ impl Simulation {
                 None => SurfaceChanges::default(),
             },
         };
+        surgery.forget_reused(&frame.surface);
         counters.remesh_ns += elapsed(t);
         frame.cuts = events;
         if changes.is_some() {
@@ -458,8 +481,9 @@ impl Simulation {
             ),
             super::Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
         };
-        self.surgery =
-            Some(Box::new(Surgery::new(&[], surface).expect("no tools: nothing to load")));
+        self.surgery = Some(Box::new(
+            Surgery::new(&[], surface, self.config.dt()).expect("no tools: nothing to load"),
+        ));
     }
 
     /// The deformed position of every surface vertex slot now (dead slots hold anything), for
@@ -480,16 +504,16 @@ impl Simulation {
         changes: Option<&incise_grid::GridChanges>,
     ) {
         let Some(mut surgery) = self.surgery.take() else { return };
-        match (edit, changes, self.grid(), self.model()) {
+        let changes = match (edit, changes, self.grid(), self.model()) {
             (Some(edit), Some(changes), Some(grid), Some(model)) => {
-                surgery.surface.after_grid_edit(grid, model, &touched(edit), changes);
+                surgery.surface.after_grid_edit(grid, model, &touched(edit), changes)
             }
-            _ => {
-                if let Some(tet) = self.tet() {
-                    surgery.surface.after_tet_removal(&tet.topology);
-                }
-            }
-        }
+            _ => match self.tet() {
+                Some(tet) => surgery.surface.after_tet_removal(&tet.topology),
+                None => SurfaceChanges::default(),
+            },
+        };
+        surgery.forget_reused(&changes);
         self.surgery = Some(surgery);
     }
 

@@ -397,3 +397,37 @@ fn coexist_names_a_missing_scene() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("no_such_scene"), "{stderr}");
 }
+
+/// `incise-bench frame` on the liver, hexahedral (coarse) and tensor-mass: the JSON keys the
+/// issue's contract names are there, the scripted tools cut, and no frame's state is non-finite
+/// (the report counts them; a tool setting that destabilises a family shows here first).
+#[test]
+fn frame_report_json_has_the_contract_keys_and_every_frame_is_finite() {
+    let tensor_mass =
+        concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/scenes/liver_tensor_mass.toml");
+    // The tensor-mass liver at its own stride: its lightest vertices are what an unstable
+    // explicit tool force blows up first.
+    let liver = ["--stride", "16,16,8", "--levels", "2"];
+    for (scene, extra) in [("liver", &liver[..]), (tensor_mass, &[][..])] {
+        let out = bench().args(["frame", "--scene", scene, "--json"]).args(extra).output().unwrap();
+        assert!(out.status.success(), "{scene}: {}", String::from_utf8_lossy(&out.stderr));
+        let j = last_json(&out);
+        for key in [
+            "frame_hz_median",
+            "frame_ms_p99",
+            "cut_stroke_ms",
+            "voxels_removed",
+            "triangles",
+            "tool_force_max_n",
+            "gpu",
+            "gpu_cpu_max_diff",
+        ] {
+            assert!(j.get(key).is_some(), "{scene}: no {key} in {j}");
+        }
+        assert_eq!(j["gpu"], "none");
+        assert!(j["gpu_cpu_max_diff"].is_null());
+        assert_eq!(j["non_finite_frames"], 0, "{scene}: {j}");
+        let cut = j["voxels_removed"].as_u64().unwrap() + j["tets_removed"].as_u64().unwrap();
+        assert!(cut > 0, "{scene}: the scripted tools cut nothing");
+    }
+}

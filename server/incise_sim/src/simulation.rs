@@ -438,7 +438,9 @@ impl Simulation {
                 }
                 Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
             };
-            Some(Box::new(Surgery::new(&config.tools, surface, config.dt()).map_err(build)?))
+            Some(Box::new(
+                Surgery::new(&config.tools, surface, implicit_step(&config)).map_err(build)?,
+            ))
         };
         Ok(Self { config, calibration, body, fixed, state, index: 0, surgery })
     }
@@ -1024,4 +1026,16 @@ fn remove_voxel_cells(tet: &mut TetBody, edit: &GridEdit) -> Result<(), CutError
         }
     }
     Ok(())
+}
+
+/// The step an implicit integrator takes (s), `0` for an explicit one: what the tools' default
+/// damping is per unit of stiffness (see `ToolSpec::damping`). An explicit step is far shorter
+/// than a contact's period and resolves no penetration at once, so it needs no such damping,
+/// and a velocity damping it integrates explicitly would only lower its stable step.
+fn implicit_step(config: &SceneConfig) -> f64 {
+    let implicit = match &config.model {
+        Model::Hexahedra(hex) => matches!(hex.integrator, Integrator::ImplicitEuler { .. }),
+        Model::TensorMass(tm) => matches!(tm.integrator, TetIntegrator::ImplicitEuler { .. }),
+    };
+    if implicit { config.dt() } else { 0.0 }
 }

@@ -4,7 +4,7 @@
 //! [[tools]]
 //! name = "scalpel"
 //! stiffness = 400.0            # N/m per surface point in contact
-//! damping = 0.02               # N·s/m per point, along the normal (default: stiffness × dt)
+//! damping = 0.02               # N·s/m per point, along the normal (default: stiffness × dt, implicit)
 //! cutting = "remove"           # "off" (default), "remove" (voxels), "separate" (links)
 //! outer = { shape = "capsule", radius = 0.002, length = 0.05 }
 //! inner = { shape = "blade", length = 0.004, height = 0.003, thickness = 0.001 }
@@ -43,7 +43,7 @@ pub struct ToolSpec {
     pub stiffness: f64,
     /// Damping per surface point along the contact normal, on its velocity relative to the
     /// tool (N·s/m, `damping`). Without the key, `stiffness × dt` (the jaws' stiffness for a
-    /// grasp). A stiff contact resolves a penetration `d` within one implicit step and leaves the
+    /// grasp) with an implicit integrator, 0 with an explicit one. A stiff contact resolves a penetration `d` within one implicit step and leaves the
     /// point moving off at `d / dt`, which throws it out of contact and lets it fall back, frame
     /// after frame; damping `k·dt` closes half the penetration per step without overshoot, so
     /// the contact settles, and it is small beside the contact's stiffness at haptic rates.

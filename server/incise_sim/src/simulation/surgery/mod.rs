@@ -107,8 +107,8 @@ pub(crate) struct ToolRig {
     pose: Option<ToolPose>,
     /// Its pose at the previous step, for the swept tests.
     previous: Option<Pose>,
-    /// Its contact's stiffness and damping (the damping resolved from the time step when the
-    /// tool names none).
+    /// Its contact's stiffness and damping (the damping resolved from the implicit step when
+    /// the tool names none).
     contact: ContactSettings,
     /// Its grasp's damping per point (N·s/m).
     grasp_damping: f64,
@@ -140,8 +140,9 @@ impl Surgery {
         }
     }
 
-    /// The tools of `tools` on `surface`, in a scene stepped at `dt` (s); refuses a shape the
-    /// scene reader did not load.
+    /// The tools of `tools` on `surface`, in a scene whose implicit step is `dt` (s; 0 for an
+    /// explicit integrator: the tools' default damping per unit of stiffness); refuses a shape
+    /// the scene reader did not load.
     pub(crate) fn new(tools: &[ToolSpec], surface: OrganSurface, dt: f64) -> Result<Self, String> {
         let shape = |s: &ShapeSpec, name: &str, which: &str| match s {
             ShapeSpec::Shape(shape) => Ok(shape.clone()),
@@ -481,9 +482,8 @@ impl Simulation {
             ),
             super::Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
         };
-        self.surgery = Some(Box::new(
-            Surgery::new(&[], surface, self.config.dt()).expect("no tools: nothing to load"),
-        ));
+        self.surgery =
+            Some(Box::new(Surgery::new(&[], surface, 0.0).expect("no tools: nothing to load")));
     }
 
     /// The deformed position of every surface vertex slot now (dead slots hold anything), for

@@ -1,0 +1,20 @@
+//! Compiles `proto/incise/v1/*.proto` with protox (no protoc on the machine), generates the
+//! Rust types with prost, and keeps the encoded `FileDescriptorSet` for readers that decode
+//! without our code (the recorder embeds it).
+
+use protox::prost::Message;
+use std::path::PathBuf;
+
+const PROTOS: [&str; 3] =
+    ["proto/incise/v1/tool.proto", "proto/incise/v1/frame.proto", "proto/incise/v1/scene.proto"];
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    for proto in PROTOS {
+        println!("cargo:rerun-if-changed={proto}");
+    }
+    let descriptors = protox::compile(PROTOS, ["proto"])?;
+    let out = PathBuf::from(std::env::var("OUT_DIR")?);
+    std::fs::write(out.join("incise_v1_descriptor_set.bin"), descriptors.encode_to_vec())?;
+    prost_build::Config::new().compile_fds(descriptors)?;
+    Ok(())
+}

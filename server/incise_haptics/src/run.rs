@@ -1,0 +1,469 @@
+//! The haptic thread: wakes on every new pose (event-driven, so a force answers its pose at
+//! once) and at least at [`HapticSettings::rate_hz`] (so a silent device's force still fades),
+//! renders each tool's force, and hands it to the transports.
+//!
+//! Everything it touches is fixed-size and shared through [`LoopShared`]: the physics thread
+//! writes each tool's [`ToolSnapshot`] into a seqlock cell, the transports' receiving threads
+//! write poses into per-tool, per-source cells and unpark the thread, and the thread writes each
+//! force into the tool's output cell and calls [`ForceSink::forces_ready`]. No allocation, lock
+//! or log on that path: counters are atomics, and the period's jitter goes into a fixed
+//! histogram.
+
+use crate::cell::SeqCell;
+use crate::render::{HapticSettings, Refused, Renderer};
+use crate::snapshot::{SnapshotCell, ToolSnapshot};
+use incise_protocol::raw::{RawToolForce, RawToolPose};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::thread::Thread;
+use std::time::{Duration, Instant};
+
+/// Words of a pose record: the `RawToolPose` (18 words) and the arrival time.
+const POSE_WORDS: usize = 19;
+/// Words of a force record.
+const FORCE_WORDS: usize = 10;
+
+/// How many pose sources (transports) may drive one tool.
+pub const SOURCES: usize = 2;
+
+/// Counters the loop keeps; read by the server's status line and stats.
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Forces computed.
+    pub updates: AtomicU64,
+    /// Poses used.
+    pub poses: AtomicU64,
+    /// Poses refused: not finite, not unit, negative gripper.
+    pub invalid: AtomicU64,
+    /// Poses refused: timestamp earlier than the tool's last.
+    pub backwards: AtomicU64,
+    /// Forces sent with the `STALE` flag.
+    pub stale: AtomicU64,
+    /// Forces clamped or rate-limited.
+    pub clamped: AtomicU64,
+}
+
+/// What the haptic thread shares with the physics thread and the transports.
+#[derive(Debug)]
+pub struct LoopShared {
+    snapshots: Vec<SnapshotCell>,
+    /// Per tool, per source: the newest pose and its arrival (ns since `epoch`).
+    poses: Vec<[SeqCell<POSE_WORDS>; SOURCES]>,
+    forces: Vec<SeqCell<FORCE_WORDS>>,
+    /// The loop's clock's origin.
+    epoch: Instant,
+    thread: std::sync::OnceLock<Thread>,
+    stop: AtomicBool,
+    /// The counters.
+    pub counters: Counters,
+    jitter: Jitter,
+}
+
+impl LoopShared {
+    /// Shared state for `tools` tools.
+    #[must_use]
+    pub fn new(tools: usize) -> Arc<Self> {
+        Arc::new(Self {
+            snapshots: (0..tools).map(|_| SnapshotCell::default()).collect(),
+            poses: (0..tools).map(|_| Default::default()).collect(),
+            forces: (0..tools).map(|_| SeqCell::default()).collect(),
+            epoch: Instant::now(),
+            thread: std::sync::OnceLock::new(),
+            stop: AtomicBool::new(false),
+            counters: Counters::default(),
+            jitter: Jitter::default(),
+        })
+    }
+
+    /// The number of tools.
+    #[must_use]
+    pub fn tools(&self) -> usize {
+        self.snapshots.len()
+    }
+
+    /// Nanoseconds on the loop's clock.
+    #[must_use]
+    pub fn now_ns(&self) -> u64 {
+        u64::try_from(self.epoch.elapsed().as_nanos()).unwrap_or(u64::MAX)
+    }
+
+    /// The physics thread publishes tool `tool`'s snapshot (one writer: the physics thread).
+    pub fn publish_snapshot(&self, tool: usize, snapshot: &ToolSnapshot) {
+        if let Some(cell) = self.snapshots.get(tool) {
+            cell.write(&snapshot.to_words());
+        }
+    }
+
+    /// A transport hands over a pose for its tool from source `source` (one writer per source:
+    /// the transport's receiving thread) and wakes the loop. Returns false for a tool id the
+    /// scene lacks or a source out of range.
+    pub fn offer_pose(&self, source: usize, pose: &RawToolPose) -> bool {
+        let Some(cell) = self.poses.get(pose.tool_id as usize).and_then(|cells| cells.get(source))
+        else {
+            return false;
+        };
+        cell.write(&pose_words(pose, self.now_ns()));
+        if let Some(t) = self.thread.get() {
+            t.unpark();
+        }
+        true
+    }
+
+    /// Tool `tool`'s newest force and how many have been written (for the transports).
+    #[must_use]
+    pub fn force(&self, tool: usize) -> Option<(RawToolForce, u64)> {
+        let (w, version) = self.forces.get(tool)?.read()?;
+        Some((force_from_words(&w), version))
+    }
+
+    /// Asks the loop to stop.
+    pub fn stop(&self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(t) = self.thread.get() {
+            t.unpark();
+        }
+    }
+
+    /// The loop's period jitter so far.
+    #[must_use]
+    pub fn jitter(&self) -> &Jitter {
+        &self.jitter
+    }
+}
+
+/// Where the loop's forces go: told (from the haptic thread, so it must not block or allocate)
+/// that the tools flagged in `tools` (bit `i`: tool `i`, the first 64) have new forces in
+/// [`LoopShared::force`].
+pub trait ForceSink: Send {
+    /// New forces are ready.
+    fn forces_ready(&mut self, tools: u64);
+}
+
+/// A sink that does nothing (tests, a loop whose forces are read by polling).
+impl ForceSink for () {
+    fn forces_ready(&mut self, _tools: u64) {}
+}
+
+/// The haptic thread's state.
+pub struct HapticLoop {
+    shared: Arc<LoopShared>,
+    renderers: Vec<Renderer>,
+    /// Per tool, per source: the pose cell version last taken.
+    seen: Vec<[u64; SOURCES]>,
+    period: Duration,
+}
+
+impl HapticLoop {
+    /// A loop over `shared`'s tools with `settings`.
+    #[must_use]
+    pub fn new(shared: Arc<LoopShared>, settings: HapticSettings) -> Self {
+        let tools = shared.tools();
+        Self {
+            renderers: (0..tools).map(|t| Renderer::new(t as u32, settings)).collect(),
+            seen: vec![[0; SOURCES]; tools],
+            period: Duration::from_secs_f64(1.0 / settings.rate_hz),
+            shared,
+        }
+    }
+
+    /// Runs on the calling thread (name it `incise-haptics`) until [`LoopShared::stop`].
+    pub fn run(mut self, sink: &mut dyn ForceSink) {
+        let shared = Arc::clone(&self.shared);
+        let _ = shared.thread.set(std::thread::current());
+        let mut next = Instant::now() + self.period;
+        let mut last_tick: Option<Instant> = None;
+        while !shared.stop.load(Ordering::Acquire) {
+            let now = Instant::now();
+            let ticked = now >= next;
+            if ticked {
+                if let Some(last) = last_tick {
+                    shared.jitter.record(now.duration_since(last), self.period);
+                }
+                last_tick = Some(now);
+                // Keep to the schedule; after a long stall, start a new one from now.
+                next += self.period;
+                if next <= now {
+                    next = now + self.period;
+                }
+            }
+            let updated = self.update(ticked);
+            if updated != 0 {
+                sink.forces_ready(updated);
+            }
+            let now = Instant::now();
+            if now < next {
+                std::thread::park_timeout(next - now);
+            }
+        }
+    }
+
+    /// Takes new poses and renders: every tool on a tick, else the tools with a new pose.
+    /// Returns the tools updated (bit per tool).
+    pub fn update(&mut self, tick: bool) -> u64 {
+        let shared = &self.shared;
+        let now = shared.now_ns();
+        let mut updated = 0u64;
+        for tool in 0..self.renderers.len() {
+            let mut fresh = false;
+            for source in 0..SOURCES {
+                let cell = &shared.poses[tool][source];
+                if cell.version() == self.seen[tool][source] {
+                    continue;
+                }
+                let Some((words, version)) = cell.read() else { continue };
+                self.seen[tool][source] = version;
+                let (pose, arrived) = pose_from_words(&words);
+                match self.renderers[tool].offer(arrived, &pose) {
+                    Ok(()) => {
+                        fresh = true;
+                        shared.counters.poses.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(Refused::Invalid(_)) => {
+                        shared.counters.invalid.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(Refused::Backwards { .. }) => {
+                        shared.counters.backwards.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+            if !(tick || fresh) {
+                continue;
+            }
+            let snapshot = shared.snapshots[tool].read().map(|(w, _)| ToolSnapshot::from_words(&w));
+            let force = self.renderers[tool].force(now, snapshot.as_ref());
+            let flags = force.flags;
+            if flags & incise_protocol::v1::ForceFlag::Stale as u32 != 0 {
+                shared.counters.stale.fetch_add(1, Ordering::Relaxed);
+            }
+            if flags & incise_protocol::v1::ForceFlag::Clamped as u32 != 0 {
+                shared.counters.clamped.fetch_add(1, Ordering::Relaxed);
+            }
+            shared.forces[tool].write(&force_words(&force));
+            shared.counters.updates.fetch_add(1, Ordering::Relaxed);
+            if tool < 64 {
+                updated |= 1 << tool;
+            }
+        }
+        updated
+    }
+}
+
+/// The period's jitter: how far each tick's interval strayed from the period, in a fixed
+/// histogram of 1 µs buckets up to 10 ms (the last bucket holds everything beyond).
+#[derive(Debug)]
+pub struct Jitter {
+    buckets: Box<[AtomicU64]>,
+    max_ns: AtomicU64,
+}
+
+const JITTER_BUCKETS: usize = 10_000;
+
+impl Default for Jitter {
+    fn default() -> Self {
+        Self {
+            buckets: (0..JITTER_BUCKETS).map(|_| AtomicU64::new(0)).collect(),
+            max_ns: AtomicU64::new(0),
+        }
+    }
+}
+
+impl Jitter {
+    fn record(&self, interval: Duration, period: Duration) {
+        let off = interval.abs_diff(period);
+        let ns = u64::try_from(off.as_nanos()).unwrap_or(u64::MAX);
+        let bucket = ((ns / 1000) as usize).min(JITTER_BUCKETS - 1);
+        self.buckets[bucket].fetch_add(1, Ordering::Relaxed);
+        self.max_ns.fetch_max(ns, Ordering::Relaxed);
+    }
+
+    /// Ticks measured.
+    #[must_use]
+    pub fn count(&self) -> u64 {
+        self.buckets.iter().map(|b| b.load(Ordering::Relaxed)).sum()
+    }
+
+    /// The `q` quantile (0–1) of the deviation from the period (µs, to the bucket's upper
+    /// edge); `None` before two ticks.
+    #[must_use]
+    pub fn quantile_us(&self, q: f64) -> Option<f64> {
+        let total = self.count();
+        if total == 0 {
+            return None;
+        }
+        let rank = ((q * total as f64).ceil() as u64).clamp(1, total);
+        let mut seen = 0;
+        for (i, b) in self.buckets.iter().enumerate() {
+            seen += b.load(Ordering::Relaxed);
+            if seen >= rank {
+                return Some((i + 1) as f64);
+            }
+        }
+        None
+    }
+
+    /// The largest deviation (µs).
+    #[must_use]
+    pub fn max_us(&self) -> f64 {
+        self.max_ns.load(Ordering::Relaxed) as f64 / 1000.0
+    }
+}
+
+fn pose_words(p: &RawToolPose, arrived: u64) -> [u64; POSE_WORDS] {
+    let mut w = [0u64; POSE_WORDS];
+    w[0] = p.sequence;
+    w[1] = p.timestamp_ns;
+    let floats = p
+        .position
+        .iter()
+        .chain(&p.orientation)
+        .chain(&p.linear_velocity)
+        .chain(&p.angular_velocity)
+        .chain(std::iter::once(&p.gripper_angle));
+    for (slot, v) in w[2..16].iter_mut().zip(floats) {
+        *slot = v.to_bits();
+    }
+    w[16] = u64::from(p.tool_id) | u64::from(p.buttons) << 32;
+    w[17] = u64::from(p.has) | u64::from(p.reserved) << 32;
+    w[18] = arrived;
+    w
+}
+
+fn pose_from_words(w: &[u64; POSE_WORDS]) -> (RawToolPose, u64) {
+    let f = |k: usize| f64::from_bits(w[k]);
+    let pose = RawToolPose {
+        sequence: w[0],
+        timestamp_ns: w[1],
+        position: std::array::from_fn(|k| f(2 + k)),
+        orientation: std::array::from_fn(|k| f(5 + k)),
+        linear_velocity: std::array::from_fn(|k| f(9 + k)),
+        angular_velocity: std::array::from_fn(|k| f(12 + k)),
+        gripper_angle: f(15),
+        tool_id: w[16] as u32,
+        buttons: (w[16] >> 32) as u32,
+        has: w[17] as u32,
+        reserved: (w[17] >> 32) as u32,
+    };
+    (pose, w[18])
+}
+
+fn force_words(f: &RawToolForce) -> [u64; FORCE_WORDS] {
+    let mut w = [0u64; FORCE_WORDS];
+    w[0] = f.pose_sequence;
+    w[1] = f.timestamp_ns;
+    let floats = f.force.iter().chain(&f.torque).chain(std::iter::once(&f.gripper_force));
+    for (slot, v) in w[2..9].iter_mut().zip(floats) {
+        *slot = v.to_bits();
+    }
+    w[9] = u64::from(f.tool_id) | u64::from(f.flags) << 32;
+    w
+}
+
+fn force_from_words(w: &[u64; FORCE_WORDS]) -> RawToolForce {
+    let f = |k: usize| f64::from_bits(w[k]);
+    RawToolForce {
+        pose_sequence: w[0],
+        timestamp_ns: w[1],
+        force: std::array::from_fn(|k| f(2 + k)),
+        torque: std::array::from_fn(|k| f(5 + k)),
+        gripper_force: f(8),
+        tool_id: w[9] as u32,
+        flags: (w[9] >> 32) as u32,
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp, reason = "a faded or released force is exactly zero")]
+mod tests {
+    use super::*;
+    use incise_protocol::v1::ForceFlag;
+
+    #[test]
+    fn poses_and_forces_survive_their_records() {
+        let mut p = RawToolPose::at(7, [0.1, 0.2, 0.3]);
+        p.sequence = 9;
+        p.timestamp_ns = 11;
+        p.linear_velocity = [1.0, 2.0, 3.0];
+        p.gripper_angle = 0.4;
+        p.buttons = 0xdead_beef;
+        p.has = 1;
+        assert_eq!(pose_from_words(&pose_words(&p, 42)), (p, 42));
+        let f = RawToolForce {
+            pose_sequence: 3,
+            timestamp_ns: 4,
+            force: [1.0, -2.0, 3.5],
+            torque: [0.1, 0.2, 0.3],
+            gripper_force: 0.7,
+            tool_id: 2,
+            flags: 5,
+        };
+        assert_eq!(force_from_words(&force_words(&f)), f);
+    }
+
+    /// The thread answers each pose with a force that names it, renders the snapshot, fades
+    /// when the poses stop, and counts refused poses; its ticks keep the period (the jitter is
+    /// measured and printed, not asserted).
+    #[test]
+    fn the_thread_answers_poses_and_fades_when_they_stop() {
+        let shared = LoopShared::new(1);
+        let mut snap = ToolSnapshot {
+            frame: 1,
+            position: [0.0; 3],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+            force: [0.0, 0.0, 1.0],
+            torque: [0.0; 3],
+            jacobian: [[0.0; 6]; 6],
+            flags: ForceFlag::InContact as u32,
+        };
+        snap.jacobian[2][2] = -500.0;
+        shared.publish_snapshot(0, &snap);
+        let settings = HapticSettings { max_force_rate_n_per_s: 1e9, ..HapticSettings::default() };
+        let handle = {
+            let shared = Arc::clone(&shared);
+            std::thread::Builder::new()
+                .name("incise-haptics".into())
+                .spawn(move || HapticLoop::new(shared, settings).run(&mut ()))
+                .unwrap()
+        };
+        while shared.thread.get().is_none() {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        for seq in 1..=20u64 {
+            let mut p = RawToolPose::at(0, [0.0, 0.0, -0.001]);
+            (p.sequence, p.timestamp_ns) = (seq, seq);
+            assert!(shared.offer_pose(0, &p));
+            let deadline = Instant::now() + Duration::from_secs(2);
+            loop {
+                if let Some((f, _)) = shared.force(0)
+                    && f.pose_sequence == seq
+                {
+                    assert!((f.force[2] - 1.5).abs() < 1e-9, "{f:?}");
+                    break;
+                }
+                assert!(Instant::now() < deadline, "pose {seq} never answered");
+                std::thread::yield_now();
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let mut bad = RawToolPose::at(0, [f64::NAN, 0.0, 0.0]);
+        bad.timestamp_ns = 100;
+        assert!(shared.offer_pose(1, &bad));
+        assert!(!shared.offer_pose(0, &RawToolPose::at(5, [0.0; 3])), "no tool 5");
+        std::thread::sleep(Duration::from_millis(80));
+        let (f, _) = shared.force(0).unwrap();
+        assert_eq!(f.force, [0.0; 3], "not faded 80 ms after the last pose: {f:?}");
+        assert_ne!(f.flags & ForceFlag::Stale as u32, 0);
+        shared.stop();
+        handle.join().unwrap();
+        assert_eq!(shared.counters.invalid.load(Ordering::Relaxed), 1);
+        assert!(shared.counters.poses.load(Ordering::Relaxed) >= 20);
+        let j = shared.jitter();
+        println!(
+            "{} ticks; period deviation p50 {:?} µs, p99 {:?} µs, max {:.0} µs",
+            j.count(),
+            j.quantile_us(0.5),
+            j.quantile_us(0.99),
+            j.max_us()
+        );
+        assert!(j.count() > 50);
+    }
+}

@@ -8,9 +8,11 @@
 //! incise/v1/<scene>/cut                CutEvent, when a tool cuts
 //! incise/v1/<scene>/surface            SurfaceMesh, full or delta
 //! incise/v1/<scene>/info               SceneInfo, a zenoh queryable (answered on request)
+//! incise/v1/<scene>/tool/poses         iceoryx2 event: a client published poses
 //! ```
 //!
-//! iceoryx2 services carry the same names. A scene name is what a user typed in a scene file,
+//! iceoryx2 services carry the same names; a tool's `force` name is also the event service that
+//! wakes its client when a force is published. A scene name is what a user typed in a scene file,
 //! so it is checked here: letters, digits, `_` and `-` only, which keeps it one chunk of a key
 //! expression with no wildcard or separator in it.
 
@@ -95,6 +97,13 @@ impl Keys {
         format!("{ROOT}/{}/surface", self.scene)
     }
 
+    /// The event a shared-memory client raises after publishing poses (iceoryx2 event service:
+    /// it wakes the server's receiving thread).
+    #[must_use]
+    pub fn poses_ready(&self) -> String {
+        format!("{ROOT}/{}/tool/poses", self.scene)
+    }
+
     /// The scene's description (queried).
     #[must_use]
     pub fn info(&self) -> String {
@@ -127,6 +136,7 @@ mod tests {
         assert_eq!(k.cut(), "incise/v1/liver_13k/cut");
         assert_eq!(k.surface(), "incise/v1/liver_13k/surface");
         assert_eq!(k.info(), "incise/v1/liver_13k/info");
+        assert_eq!(k.poses_ready(), "incise/v1/liver_13k/tool/poses");
     }
 
     #[test]

@@ -1,0 +1,188 @@
+//! A client's side of either transport, for one tool: send poses, receive the forces that
+//! answer them, ask for the scene's description.
+
+use crate::TransportKind;
+use crate::shm::{ForceSample, PoseSample, event, node, records};
+use crate::zenoh_link::{Endpoints, TransportError};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher as ShmPublisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use incise_protocol::keys::Keys;
+use incise_protocol::raw::{RawToolForce, RawToolPose};
+use incise_protocol::v1;
+use prost::Message;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+
+/// One tool's connection to a server.
+#[allow(clippy::large_enum_variant, reason = "one per tool, made once")]
+pub enum Client {
+    /// Over zenoh.
+    Zenoh(ZenohClient),
+    /// Over iceoryx2 shared memory.
+    Iceoryx2(ShmClient),
+}
+
+impl Client {
+    /// Connects to the server of `keys`' scene to drive tool `tool`: over zenoh to `endpoint`
+    /// (`tcp/HOST:PORT`), or over iceoryx2 on this machine (`endpoint` unused).
+    pub fn connect(
+        kind: TransportKind,
+        keys: &Keys,
+        tool: u32,
+        endpoint: &str,
+    ) -> Result<Self, TransportError> {
+        Ok(match kind {
+            TransportKind::Zenoh => Self::Zenoh(ZenohClient::connect(keys, tool, endpoint)?),
+            TransportKind::Iceoryx2 => Self::Iceoryx2(ShmClient::connect(keys, tool)?),
+        })
+    }
+
+    /// Sends a pose.
+    pub fn send_pose(&self, pose: &RawToolPose) -> Result<(), TransportError> {
+        match self {
+            Self::Zenoh(c) => c.send_bytes(&v1::ToolPose::from(pose).encode_to_vec()),
+            Self::Iceoryx2(c) => c.send_pose(pose),
+        }
+    }
+
+    /// The next force the server sent, waiting up to `timeout`.
+    #[must_use]
+    pub fn recv_force(&self, timeout: Duration) -> Option<RawToolForce> {
+        match self {
+            Self::Zenoh(c) => c.forces.recv_timeout(timeout).ok(),
+            Self::Iceoryx2(c) => c.recv_force(timeout),
+        }
+    }
+}
+
+/// A zenoh client.
+pub struct ZenohClient {
+    pose: zenoh::pubsub::Publisher<'static>,
+    forces: mpsc::Receiver<RawToolForce>,
+    _forces: zenoh::pubsub::Subscriber<()>,
+    info: String,
+    session: zenoh::Session,
+}
+
+impl ZenohClient {
+    /// Connects to `endpoint` for tool `tool`.
+    pub fn connect(keys: &Keys, tool: u32, endpoint: &str) -> Result<Self, TransportError> {
+        let session = Endpoints::connect_to(endpoint).open("client")?;
+        let key = keys.tool_pose(tool);
+        let pose = session
+            .declare_publisher(key.clone())
+            .congestion_control(zenoh::qos::CongestionControl::Drop)
+            .priority(zenoh::qos::Priority::RealTime)
+            .express(true)
+            .wait()
+            .map_err(|e| TransportError(format!("zenoh: cannot publish on {key}: {e}")))?;
+        let (tx, forces) = mpsc::channel();
+        let force_key = keys.tool_force(tool);
+        let subscriber = session
+            .declare_subscriber(force_key.clone())
+            .callback(move |sample| {
+                if let Ok(f) = v1::ToolForce::decode(&*sample.payload().to_bytes()) {
+                    let _ = tx.send(RawToolForce::from(&f));
+                }
+            })
+            .wait()
+            .map_err(|e| TransportError(format!("zenoh: cannot subscribe to {force_key}: {e}")))?;
+        Ok(Self { pose, forces, _forces: subscriber, info: keys.info(), session })
+    }
+
+    /// Publishes `bytes` on the tool's pose key, whatever they are (a test of the server's
+    /// defences sends garbage this way).
+    pub fn send_bytes(&self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.pose
+            .put(bytes.to_vec())
+            .wait()
+            .map_err(|e| TransportError(format!("zenoh: cannot send a pose: {e}")))
+    }
+
+    /// Asks the server for its scene's description.
+    pub fn scene_info(&self, timeout: Duration) -> Result<v1::SceneInfo, TransportError> {
+        let replies = self
+            .session
+            .get(self.info.clone())
+            .timeout(timeout)
+            .wait()
+            .map_err(|e| TransportError(format!("zenoh: cannot ask {}: {e}", self.info)))?;
+        let reply = replies
+            .recv_timeout(timeout)
+            .map_err(|e| TransportError(format!("zenoh: {}: {e}", self.info)))?
+            .ok_or_else(|| TransportError(format!("no server answered {}", self.info)))?;
+        let sample = reply
+            .result()
+            .map_err(|e| TransportError(format!("{}: an error reply: {e:?}", self.info)))?;
+        v1::SceneInfo::decode(&*sample.payload().to_bytes())
+            .map_err(|e| TransportError(format!("{}: not a SceneInfo: {e}", self.info)))
+    }
+}
+
+type Shared = ipc_threadsafe::Service;
+
+/// An iceoryx2 client.
+pub struct ShmClient {
+    pose: ShmPublisher<Shared, PoseSample, ()>,
+    ready: Notifier<Shared>,
+    forces: Subscriber<Shared, ForceSample, ()>,
+    listener: Listener<Shared>,
+    _node: Node<Shared>,
+}
+
+impl ShmClient {
+    /// Opens tool `tool`'s services of `keys`' scene.
+    pub fn connect(keys: &Keys, tool: u32) -> Result<Self, TransportError> {
+        let err = |what: String| {
+            move |e: &dyn std::fmt::Debug| TransportError(format!("iceoryx2: {what}: {e:?}"))
+        };
+        let node = node::<Shared>()?;
+        let pose_key = keys.tool_pose(tool);
+        let pose = records::<Shared, PoseSample>(&node, &pose_key)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| err(format!("cannot publish on {pose_key}"))(&e))?;
+        let ready = event(&node, &keys.poses_ready())?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err("cannot raise the poses event".into())(&e))?;
+        let force_key = keys.tool_force(tool);
+        let forces = records::<Shared, ForceSample>(&node, &force_key)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err(format!("cannot subscribe to {force_key}"))(&e))?;
+        let listener = event(&node, &force_key)?
+            .listener_builder()
+            .create()
+            .map_err(|e| err(format!("cannot listen on {force_key}"))(&e))?;
+        Ok(Self { pose, ready, forces, listener, _node: node })
+    }
+
+    /// Publishes a pose and wakes the server.
+    pub fn send_pose(&self, pose: &RawToolPose) -> Result<(), TransportError> {
+        self.pose
+            .send_copy(PoseSample(*pose))
+            .map_err(|e| TransportError(format!("iceoryx2: cannot send a pose: {e:?}")))?;
+        self.ready
+            .notify()
+            .map_err(|e| TransportError(format!("iceoryx2: cannot wake the server: {e:?}")))?;
+        Ok(())
+    }
+
+    /// The next force, waiting up to `timeout`.
+    #[must_use]
+    pub fn recv_force(&self, timeout: Duration) -> Option<RawToolForce> {
+        let until = Instant::now() + timeout;
+        loop {
+            if let Ok(Some(sample)) = self.forces.receive() {
+                return Some(sample.payload().0);
+            }
+            let left = until.checked_duration_since(Instant::now())?;
+            let _ = self.listener.timed_wait(|_| {}, left);
+        }
+    }
+}

@@ -284,7 +284,7 @@ fn case_of(
     };
     let block = match hex.volume {
         VolumeSpec::Block { size_m, voxels } => Some((size_m, voxels)),
-        VolumeSpec::File { .. } => None,
+        VolumeSpec::File { .. } | VolumeSpec::Organ { .. } => None,
     };
     Ok(Case {
         scene: name.into(),

@@ -59,6 +59,29 @@ pub fn ellipsoid_with_inclusion(n: usize, spacing: f64) -> LabelVolume {
     })
 }
 
+/// An organ with a tumour in a box of `dims` voxels: the ellipsoid inscribed in the box
+/// (semi-axes 0.48 of each edge) of [`TISSUE`], holding a sphere of [`TUMOUR`] (radius 0.3 of
+/// the shortest semi-axis) set off the centre by a quarter of the x semi-axis and a tenth of the z
+/// one, so that a tool pressed on the top near the centre meets it under a few millimetres of
+/// tissue. The server's embedded scene and `procedural = "organ"` use it.
+#[must_use]
+pub fn organ(dims: [usize; 3], spacing: Vec3) -> LabelVolume {
+    let c = dims.map(|d| (d as f64 - 1.0) / 2.0);
+    let axes = dims.map(|d| 0.48 * d as f64);
+    let radius = 0.3 * axes.iter().copied().fold(f64::INFINITY, f64::min);
+    let tumour = [c[0] + 0.25 * axes[0], c[1], c[2] + 0.1 * axes[2]];
+    from_fn(dims, spacing, |x, y, z| {
+        let p = [x, y, z];
+        if (0..3).map(|a| (p[a] - tumour[a]).powi(2)).sum::<f64>() <= radius * radius {
+            TUMOUR
+        } else if (0..3).map(|a| ((p[a] - c[a]) / axes[a]).powi(2)).sum::<f64>() <= 1.0 {
+            TISSUE
+        } else {
+            0
+        }
+    })
+}
+
 /// Shape of [`u_tube`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct UTube {

@@ -109,6 +109,17 @@ impl LoopShared {
         true
     }
 
+    /// Tool `tool`'s newest pose from any source, unchecked (the physics thread checks it), and
+    /// when it arrived (ns on the loop's clock).
+    #[must_use]
+    pub fn newest_pose(&self, tool: usize) -> Option<(RawToolPose, u64)> {
+        self.poses
+            .get(tool)?
+            .iter()
+            .filter_map(|cell| cell.read().map(|(w, _)| pose_from_words(&w)))
+            .max_by_key(|(_, arrived)| *arrived)
+    }
+
     /// Tool `tool`'s newest force and how many have been written (for the transports).
     #[must_use]
     pub fn force(&self, tool: usize) -> Option<(RawToolForce, u64)> {

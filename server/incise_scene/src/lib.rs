@@ -149,8 +149,8 @@ fn volume_of(
 ) -> Result<SceneGeometry, IoError> {
     Ok(SceneGeometry::Volume(match volume {
         VolumeSpec::File { path, .. } => incise_io::read_volume(&base.join(path))?,
-        VolumeSpec::Block { .. } => {
-            config.procedural_volume().expect("a block is a procedural volume")
+        VolumeSpec::Block { .. } | VolumeSpec::Organ { .. } => {
+            config.procedural_volume().expect("a block or an organ is a procedural volume")
         }
     }))
 }

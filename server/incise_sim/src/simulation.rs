@@ -800,7 +800,7 @@ fn prepared(spec: &VolumeSpec, raw: &LabelVolume) -> Result<LabelVolume, String>
         VolumeSpec::File { stride, labels, .. } => {
             raw.filtered(labels).crop_and_stride(*stride).map_err(|e| e.to_string())
         }
-        VolumeSpec::Block { .. } => Ok(raw.clone()),
+        VolumeSpec::Block { .. } | VolumeSpec::Organ { .. } => Ok(raw.clone()),
     }
 }
 

@@ -318,6 +318,15 @@ pub enum VolumeSpec {
         /// Voxels per axis.
         voxels: [usize; 3],
     },
+    /// An organ with a tumour in a box of `voxels` cells filling `size_m`: the ellipsoid
+    /// inscribed in the box (label 1) holding an off-centre sphere (label 2); see
+    /// `incise_grid::procedural::organ`.
+    Organ {
+        /// Edge lengths of the box (m).
+        size_m: [f64; 3],
+        /// Voxels per axis.
+        voxels: [usize; 3],
+    },
 }
 
 /// A tissue of one label (or mesh region).
@@ -524,6 +533,10 @@ impl SceneConfig {
                 Some(incise_grid::procedural::from_fn(*voxels, spacing, |_, _, _| {
                     incise_grid::procedural::TISSUE
                 }))
+            }
+            VolumeSpec::Organ { size_m, voxels } => {
+                let spacing = std::array::from_fn(|a| size_m[a] / voxels[a] as f64);
+                Some(incise_grid::procedural::organ(*voxels, spacing))
             }
             VolumeSpec::File { .. } => None,
         }
@@ -1428,18 +1441,22 @@ impl Checker<'_> {
             "applies to a volume file; a procedural volume has no stride or labels",
         )?;
         self.refuse(&mesh_keys[1..], "applies only to `volume.mesh`")?;
-        if kind.get_ref() != "block" {
-            return Err(self.invalid(
-                kind.span(),
-                "volume.procedural",
-                format!("is \"{}\"; the known volume is \"block\"", kind.get_ref()),
-            ));
-        }
+        let organ = match kind.get_ref().as_str() {
+            "block" => false,
+            "organ" => true,
+            other => {
+                return Err(self.invalid(
+                    kind.span(),
+                    "volume.procedural",
+                    format!("is \"{other}\"; the known volumes are \"block\" and \"organ\""),
+                ));
+            }
+        };
         let (Some(size), Some(voxels)) = (&v.size_m, &v.voxels) else {
             return Err(self.invalid(
                 kind.span(),
                 "volume.procedural",
-                "\"block\" needs `size_m` and `voxels`",
+                format!("\"{}\" needs `size_m` and `voxels`", kind.get_ref()),
             ));
         };
         let s = *size.get_ref();
@@ -1450,9 +1467,11 @@ impl Checker<'_> {
                 format!("is {s:?}; every edge must be finite and positive"),
             ));
         }
-        Ok(Geometry::Volume(VolumeSpec::Block {
-            size_m: s,
-            voxels: self.counts(voxels, "volume.voxels", 4096)?,
+        let voxels = self.counts(voxels, "volume.voxels", 4096)?;
+        Ok(Geometry::Volume(if organ {
+            VolumeSpec::Organ { size_m: s, voxels }
+        } else {
+            VolumeSpec::Block { size_m: s, voxels }
         }))
     }
 

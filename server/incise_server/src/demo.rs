@@ -1,0 +1,233 @@
+//! `incise-server --demo`: the embedded scene served as usual, driven by two scripted clients
+//! in their own threads over the real transports (the scalpel over iceoryx2, the grasper over
+//! zenoh): the scalpel presses, then cuts a stroke; the grasper takes hold of the tissue beside
+//! the cut and lifts it. Each client times every pose's round trip to the force that answers
+//! it. A progress line shows while it runs; the summary follows.
+
+use crate::server::{self, Options, Running};
+use incise_protocol::raw::RawToolPose;
+use incise_sim::Simulation;
+use incise_transport::{Client, TransportKind};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+/// The tool's z axis down the grid's −z (a half turn about x): the grasper's jaws point down.
+const POINT_DOWN: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
+/// Unrotated: the scalpel's edge down, its shaft up.
+const UPRIGHT: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
+
+/// One scripted client's results.
+#[derive(Clone, Debug, Default)]
+pub struct ClientReport {
+    /// The tool's name and transport.
+    pub tool: String,
+    /// `zenoh` or `iceoryx2`.
+    pub transport: &'static str,
+    /// Poses sent.
+    pub sent: u64,
+    /// Round trips measured (poses whose own force came back within the period), µs, sorted.
+    pub rtt_us: Vec<f64>,
+    /// The largest force received (N).
+    pub max_force_n: f64,
+}
+
+impl ClientReport {
+    /// The `q` quantile of the round trips (µs).
+    #[must_use]
+    pub fn quantile(&self, q: f64) -> Option<f64> {
+        let n = self.rtt_us.len();
+        (n > 0).then(|| self.rtt_us[((q * n as f64).ceil() as usize).clamp(1, n) - 1])
+    }
+}
+
+/// Where the script puts the tools: the organ's top surface height at the scalpel's and the
+/// grasper's x, y.
+struct Stage {
+    scalpel: [f64; 3],
+    grasper: [f64; 3],
+}
+
+/// The highest surface point within 3 mm of `(x, y)` at rest.
+fn top_at(sim: &Simulation, x: f64, y: f64) -> f64 {
+    let p = sim.surface_positions().expect("the scene has tools, so a surface");
+    sim.surface()
+        .expect("a surface")
+        .live_vertices()
+        .iter()
+        .map(|&v| p[v as usize])
+        .filter(|q| (q[0] - x).hypot(q[1] - y) < 0.003)
+        .map(|q| q[2])
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
+fn stage(scene: &incise_scene::Scene) -> anyhow::Result<Stage> {
+    let sim = Simulation::new(&scene.config, &scene.geometry, "<demo>")?;
+    let (sx, sy) = (0.035, 0.03);
+    let (gx, gy) = (0.035, 0.045);
+    Ok(Stage { scalpel: [sx, sy, top_at(&sim, sx, sy)], grasper: [gx, gy, top_at(&sim, gx, gy)] })
+}
+
+/// A linear ramp between key frames `(t, value)` (held before the first and after the last).
+fn ramp(keys: &[(f64, f64)], t: f64) -> f64 {
+    match keys.iter().position(|&(k, _)| k > t) {
+        None => keys.last().map_or(0.0, |k| k.1),
+        Some(0) => keys[0].1,
+        Some(i) => {
+            let ((t0, a), (t1, b)) = (keys[i - 1], keys[i]);
+            a + (b - a) * (t - t0) / (t1 - t0)
+        }
+    }
+}
+
+/// The scalpel at time fraction `f` of the demo: down to the surface, pressed 2 mm (it pushes),
+/// 6 mm (it cuts), drawn 2 cm along x, lifted out.
+fn scalpel(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
+    let [x, y, top] = s.scalpel;
+    let z = ramp(&[(0.0, 0.01), (0.08, 0.001), (0.25, -0.002), (0.4, -0.006), (0.6, -0.006), (0.7, 0.01)], f);
+    let dx = ramp(&[(0.4, 0.0), (0.6, 0.02)], f);
+    ([x + dx, y, top + z], UPRIGHT, 0.0)
+}
+
+/// The grasper: lowered open until its hinge is 1 mm into the surface, closed, lifted 4 mm,
+/// opened and raised.
+fn grasper(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
+    let [x, y, top] = s.grasper;
+    let z = ramp(&[(0.5, 0.012), (0.62, -0.001), (0.7, -0.001), (0.82, 0.003), (0.9, 0.003), (0.97, 0.012)], f);
+    let gripper = ramp(&[(0.64, 0.5), (0.66, 0.0), (0.9, 0.0), (0.92, 0.5)], f);
+    ([x, y, top + z], POINT_DOWN, gripper)
+}
+
+type Script = fn(&Stage, f64) -> ([f64; 3], [f64; 4], f64);
+
+/// Drives tool `tool` over `client` at 1 kHz for `duration`.
+fn drive(client: &Client, tool: u32, stage: &Stage, script: Script, duration: Duration) -> ClientReport {
+    let period = Duration::from_millis(1);
+    let start = Instant::now();
+    let mut next = start;
+    let mut report = ClientReport::default();
+    let mut sequence = 0u64;
+    while start.elapsed() < duration {
+        sequence += 1;
+        let f = start.elapsed().as_secs_f64() / duration.as_secs_f64();
+        let (position, orientation, gripper_angle) = script(stage, f);
+        let pose = RawToolPose {
+            sequence,
+            timestamp_ns: start.elapsed().as_nanos() as u64,
+            orientation,
+            gripper_angle,
+            ..RawToolPose::at(tool, position)
+        };
+        let sent = Instant::now();
+        if client.send_pose(&pose).is_err() {
+            continue;
+        }
+        report.sent += 1;
+        next += period;
+        // Wait for this pose's own force until the next pose is due.
+        while let Some(left) = next.checked_duration_since(Instant::now()) {
+            let Some(force) = client.recv_force(left) else { break };
+            let n = force.force.iter().map(|c| c * c).sum::<f64>().sqrt();
+            report.max_force_n = report.max_force_n.max(n);
+            if force.pose_sequence == sequence {
+                report.rtt_us.push(sent.elapsed().as_secs_f64() * 1e6);
+                break;
+            }
+        }
+        if let Some(left) = next.checked_duration_since(Instant::now()) {
+            std::thread::sleep(left);
+        } else if Instant::now() - next > 10 * period {
+            next = Instant::now();
+        }
+    }
+    report.rtt_us.sort_by(f64::total_cmp);
+    report
+}
+
+/// Runs the demo for `duration` with `options`; prints progress to stderr and returns the
+/// server's final status and each client's report.
+pub fn run(options: &Options, duration: Duration) -> anyhow::Result<(Running, Vec<ClientReport>)> {
+    let scene = crate::scene::load(None)?;
+    let stage = stage(&scene)?;
+    let running = server::start(&scene, "<embedded demo scene>", options)?;
+    let endpoint = options
+        .zenoh
+        .as_ref()
+        .and_then(|z| z.listen.first().cloned())
+        .ok_or_else(|| anyhow::anyhow!("the demo drives its grasper over zenoh: do not turn zenoh off"))?;
+    let scalpel_kind = if options.iceoryx2 { TransportKind::Iceoryx2 } else { TransportKind::Zenoh };
+    let plan: [(u32, TransportKind, Script); 2] =
+        [(0, scalpel_kind, scalpel), (1, TransportKind::Zenoh, grasper)];
+    let reports = std::thread::scope(|scope| -> anyhow::Result<Vec<ClientReport>> {
+        let mut handles = Vec::new();
+        for (tool, kind, script) in plan {
+            let client = Client::connect(kind, &running.keys, tool, &endpoint)?;
+            let (stage, name) = (&stage, running.tools[tool as usize].clone());
+            handles.push(scope.spawn(move || {
+                let mut r = drive(&client, tool, stage, script, duration);
+                (r.tool, r.transport) = (name, kind.name());
+                r
+            }));
+        }
+        let start = Instant::now();
+        while handles.iter().any(|h| !h.is_finished()) {
+            std::thread::sleep(Duration::from_millis(500));
+            eprint!(
+                "\r\x1b[2Kdemo {:.1}/{:.1} s | {}",
+                start.elapsed().as_secs_f64().min(duration.as_secs_f64()),
+                duration.as_secs_f64(),
+                running.status()
+            );
+        }
+        eprintln!();
+        Ok(handles.into_iter().map(|h| h.join().expect("a demo client panicked")).collect())
+    })?;
+    Ok((running, reports))
+}
+
+/// The summary the demo prints.
+#[must_use]
+pub fn summary(running: &Running, reports: &[ClientReport], duration: Duration) -> String {
+    let get = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
+    let p = &running.physics;
+    let secs = duration.as_secs_f64();
+    let jitter = running.shared.jitter();
+    let mut out = format!(
+        "demo: {secs:.1} s of {} with {} tools\nphysics: {} frames ({:.0} Hz, dt {} ms), {} late, {} step errors; removed {} voxels\nhaptics: {} updates; period jitter p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs\n",
+        running.keys.scene(),
+        running.tools.len(),
+        get(&p.frames),
+        get(&p.frames) as f64 / secs,
+        running.dt * 1e3,
+        get(&p.late),
+        get(&p.step_errors),
+        get(&p.removed),
+        get(&running.shared.counters.updates),
+        jitter.quantile_us(0.5).unwrap_or(0.0),
+        jitter.quantile_us(0.99).unwrap_or(0.0),
+        jitter.max_us(),
+    );
+    for r in reports {
+        let q = |x: f64| r.quantile(x).map_or("-".into(), |v| format!("{v:.0}"));
+        out += &format!(
+            "{} over {}: {} poses, {} answered within 1 ms; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.2} N\n",
+            r.tool,
+            r.transport,
+            r.sent,
+            r.rtt_us.len(),
+            q(0.5),
+            q(0.99),
+            q(0.999),
+            q(1.0),
+            r.max_force_n
+        );
+    }
+    let faults: Vec<String> = running
+        .faults
+        .snapshot()
+        .iter()
+        .filter(|(_, n)| *n > 0)
+        .map(|(k, n)| format!("{n} {k}"))
+        .collect();
+    out += &format!("faults: {}", if faults.is_empty() { "none".into() } else { faults.join(", ") });
+    out
+}

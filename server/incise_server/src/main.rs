@@ -1,0 +1,117 @@
+//! `incise-server`: see the crate documentation and `incise-server --help`.
+
+use anyhow::Context;
+use clap::Parser;
+use incise_haptics::HapticSettings;
+use incise_server::server::{self, Options};
+use incise_transport::zenoh_link::Endpoints;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// The incise simulation server: steps a deformable organ in real time, renders each tool's
+/// force at 1 kHz, and serves tool poses and forces over zenoh (network) and iceoryx2 (shared
+/// memory) at once.
+#[derive(Parser, Debug)]
+#[command(version, about, long_about = None)]
+struct Cli {
+    /// A scene file (TOML, see deploy/scenes/README.md); without one, the embedded demo organ
+    /// (8 × 6 × 5 cm with a tumour, a scalpel and a grasper) runs.
+    scene: Option<PathBuf>,
+    /// zenoh endpoint to listen on (repeatable); loopback only by default.
+    #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
+    listen: Vec<String>,
+    /// Find zenoh peers by UDP multicast too (off: explicit endpoints only).
+    #[arg(long)]
+    multicast_scouting: bool,
+    /// Do not serve zenoh.
+    #[arg(long)]
+    no_zenoh: bool,
+    /// Do not serve iceoryx2 (shared memory).
+    #[arg(long)]
+    no_iceoryx2: bool,
+    /// The largest force sent to a device (N).
+    #[arg(long, default_value_t = HapticSettings::default().max_force_n)]
+    max_force: f64,
+    /// Seconds between status lines.
+    #[arg(long, default_value_t = 5.0)]
+    status_every: f64,
+    /// Run the demo: the embedded scene driven by two scripted clients over the real
+    /// transports (a scalpel presses and cuts over iceoryx2, a grasper lifts over zenoh), then
+    /// a summary of frames, rates, round-trip latencies, forces and cuts.
+    #[arg(long)]
+    demo: bool,
+    /// How long the demo runs (s).
+    #[arg(long, default_value_t = 6.0, requires = "demo")]
+    duration: f64,
+}
+
+fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    anyhow::ensure!(
+        cli.max_force.is_finite() && cli.max_force > 0.0,
+        "--max-force must be a positive number of newtons, not {}",
+        cli.max_force
+    );
+    let options = Options {
+        zenoh: (!cli.no_zenoh).then(|| Endpoints {
+            listen: cli.listen.clone(),
+            connect: Vec::new(),
+            multicast_scouting: cli.multicast_scouting,
+        }),
+        iceoryx2: !cli.no_iceoryx2,
+        haptics: HapticSettings { max_force_n: cli.max_force, ..HapticSettings::default() },
+    };
+    if cli.demo {
+        anyhow::ensure!(cli.scene.is_none(), "--demo runs its own scene; leave out {:?}", cli.scene);
+        anyhow::ensure!(
+            cli.duration.is_finite() && cli.duration > 0.0,
+            "--duration must be a positive number of seconds"
+        );
+        let duration = Duration::from_secs_f64(cli.duration);
+        let (running, reports) = incise_server::demo::run(&options, duration)?;
+        println!("{}", incise_server::demo::summary(&running, &reports, duration));
+        running.stop();
+        return Ok(());
+    }
+    let scene = incise_server::scene::load(cli.scene.as_deref())?;
+    for note in &scene.notes {
+        tracing::info!("{note}");
+    }
+    let file = cli.scene.as_ref().map_or("<embedded demo scene>".into(), |p| p.display().to_string());
+    let running = server::start(&scene, &file, &options)?;
+    tracing::info!(
+        "serving {} ({} tools: {}) on {}{}",
+        running.keys.scene(),
+        running.tools.len(),
+        running.tools.join(", "),
+        options.zenoh.as_ref().map_or("no zenoh".into(), |z| format!("zenoh {}", z.listen.join(" "))),
+        if options.iceoryx2 { " and iceoryx2" } else { "" }
+    );
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        ctrlc::set_handler(move || stop.store(true, Ordering::Release))
+            .context("cannot install the SIGINT/SIGTERM handler")?;
+    }
+    let every = Duration::from_secs_f64(cli.status_every.max(0.1));
+    let mut last = Instant::now();
+    while !stop.load(Ordering::Acquire) {
+        std::thread::sleep(Duration::from_millis(50));
+        if last.elapsed() >= every {
+            tracing::info!("{}", running.status());
+            last = Instant::now();
+        }
+    }
+    tracing::info!("stopping: {}", running.status());
+    running.stop();
+    Ok(())
+}

@@ -1,0 +1,166 @@
+//! The physics thread: steps the simulation in real time with each tool's newest pose, hands
+//! the haptic loop every tool's contact linearised at the new frame, and publishes the frame's
+//! statistics and cuts.
+
+use incise_haptics::{LoopShared, ToolSnapshot};
+use incise_protocol::check::check_pose;
+use incise_protocol::v1::{self, ForceFlag};
+use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
+use incise_tool::ToolPose;
+use incise_transport::ServerSide;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// What the physics thread counts (read by the status line and the demo's summary).
+#[derive(Debug, Default)]
+pub struct PhysicsStats {
+    /// Frames stepped.
+    pub frames: AtomicU64,
+    /// Frames that ended after their wall-clock deadline.
+    pub late: AtomicU64,
+    /// Steps that failed (logged; the previous state is kept).
+    pub step_errors: AtomicU64,
+    /// Voxels removed (or tetrahedra) by the tools.
+    pub removed: AtomicU64,
+    /// The last frame's wall time (µs).
+    pub last_frame_us: AtomicU64,
+    /// Each tool's last force magnitude (µN) and the largest so far (µN).
+    pub tool_force_un: [AtomicU64; 8],
+    /// See `tool_force_un`.
+    pub max_force_un: AtomicU64,
+}
+
+/// The most tools whose force the statistics keep.
+const TRACKED: usize = 8;
+
+/// Steps `sim` every `dt` of wall time until `stop`.
+pub fn run(
+    mut sim: Simulation,
+    shared: &LoopShared,
+    transports: &ServerSide,
+    stats: &PhysicsStats,
+    stop: &AtomicBool,
+) {
+    let dt = Duration::from_secs_f64(sim.config().dt());
+    let tools = shared.tools();
+    let mut next = Instant::now();
+    let mut last_warning: Option<Instant> = None;
+    let second = Instant::now();
+    let mut frames_in_second = (second, 0u64, 0.0f64);
+    while !stop.load(Ordering::Acquire) {
+        let started = Instant::now();
+        let inputs = StepInputs { tools: newest_poses(shared, tools), ..StepInputs::default() };
+        match sim.step(&inputs) {
+            Ok(frame) => {
+                hand_over(&frame, shared, stats);
+                let elapsed = started.elapsed();
+                stats.last_frame_us.store(elapsed.as_micros() as u64, Ordering::Relaxed);
+                let n = stats.frames.fetch_add(1, Ordering::Relaxed) + 1;
+                // Frames per second of wall time, over the last second.
+                let (since, at, rate) = &mut frames_in_second;
+                if since.elapsed() >= Duration::from_secs(1) {
+                    *rate = (n - *at) as f64 / since.elapsed().as_secs_f64();
+                    (*since, *at) = (Instant::now(), n);
+                }
+                transports.send_frame(&frame_stats(&frame, &sim, elapsed, *rate));
+                for cut in &frame.surgical.cuts {
+                    transports.send_cut(&v1::CutEvent {
+                        frame: frame.index,
+                        tool_id: cut.tool as u32,
+                        voxels_removed: cut.voxels_removed as u32,
+                        links_severed: cut.links_severed as u32,
+                        tets_removed: cut.tets_removed as u32,
+                    });
+                }
+            }
+            Err(e) => {
+                stats.step_errors.fetch_add(1, Ordering::Relaxed);
+                // At most one message a second: a client that sends bad input every frame must
+                // not flood the log.
+                if last_warning.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+                    tracing::warn!("physics step refused its inputs: {e}");
+                    last_warning = Some(Instant::now());
+                }
+            }
+        }
+        next += dt;
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        } else {
+            stats.late.fetch_add(1, Ordering::Relaxed);
+            // Far behind (a stall): start the schedule again instead of racing to catch up.
+            if now - next > 10 * dt {
+                next = now;
+            }
+        }
+    }
+}
+
+/// Each tool's newest usable pose (an unusable one is left to the haptic loop to count).
+fn newest_poses(shared: &LoopShared, tools: usize) -> Vec<ToolInput> {
+    (0..tools)
+        .filter_map(|tool| {
+            let (raw, _) = shared.newest_pose(tool)?;
+            let p = check_pose(&raw).ok()?;
+            let pose = ToolPose::new(p.position, p.orientation, p.gripper_angle).ok()?;
+            Some(ToolInput { tool, pose })
+        })
+        .collect()
+}
+
+/// Every tool's snapshot to the haptic loop, and the tool statistics.
+fn hand_over(frame: &Frame, shared: &LoopShared, stats: &PhysicsStats) {
+    for (i, tool) in frame.surgical.tools.iter().enumerate() {
+        let Some(pose) = tool.pose else { continue };
+        let lin = &tool.linearisation;
+        let mut flags = 0;
+        if tool.contact_points > 0 || tool.held_points > 0 {
+            flags |= ForceFlag::InContact as u32;
+        }
+        if frame.surgical.cuts.iter().any(|c| c.tool == i) {
+            flags |= ForceFlag::Cutting as u32;
+        }
+        shared.publish_snapshot(
+            i,
+            &ToolSnapshot {
+                frame: frame.index,
+                position: pose.pose.position(),
+                orientation: pose.pose.rotation(),
+                force: lin.force,
+                torque: lin.torque,
+                jacobian: lin.jacobian,
+                flags,
+            },
+        );
+        let un = (lin.force.iter().map(|c| c * c).sum::<f64>().sqrt() * 1e6) as u64;
+        if i < TRACKED {
+            stats.tool_force_un[i].store(un, Ordering::Relaxed);
+        }
+        stats.max_force_un.fetch_max(un, Ordering::Relaxed);
+    }
+    let removed = frame.counters.voxels_removed + frame.counters.tets_removed;
+    stats.removed.fetch_add(removed as u64, Ordering::Relaxed);
+}
+
+fn frame_stats(frame: &Frame, sim: &Simulation, wall: Duration, rate: f64) -> v1::FrameStats {
+    let c = &frame.counters;
+    let ms = |ns: u64| ns as f64 * 1e-6;
+    v1::FrameStats {
+        frame: frame.index,
+        sim_time_s: frame.time,
+        frame_ms: wall.as_secs_f64() * 1e3,
+        contact_ms: ms(c.contact_ns),
+        cut_ms: ms(c.cut_ns),
+        grid_ms: ms(c.grid_ns),
+        remesh_ms: ms(c.remesh_ns),
+        mechanics_ms: ms(c.mechanics_ns),
+        contact_points: c.contact_points as u32,
+        voxels_removed: c.voxels_removed as u32,
+        links_severed: c.links_severed as u32,
+        tets_removed: c.tets_removed as u32,
+        triangles: sim.surface().map_or(0, |s| s.triangle_count()) as u32,
+        frame_rate_hz: rate,
+        solver_iterations: c.solver_iterations as u32,
+    }
+}

@@ -12,6 +12,7 @@
 use crate::cell::SeqCell;
 use crate::render::{HapticSettings, Refused, Renderer};
 use crate::snapshot::{SnapshotCell, ToolSnapshot};
+use incise_protocol::check::check_pose;
 use incise_protocol::raw::{RawToolForce, RawToolPose};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -49,6 +50,9 @@ pub struct LoopShared {
     snapshots: Vec<SnapshotCell>,
     /// Per tool, per source: the newest pose and its arrival (ns since `epoch`).
     poses: Vec<[SeqCell<POSE_WORDS>; SOURCES]>,
+    /// Per tool, per source: the newest accepted pose's timestamp (written by the source's
+    /// thread only).
+    stamps: Vec<[AtomicU64; SOURCES]>,
     forces: Vec<SeqCell<FORCE_WORDS>>,
     /// The loop's clock's origin.
     epoch: Instant,
@@ -66,6 +70,7 @@ impl LoopShared {
         Arc::new(Self {
             snapshots: (0..tools).map(|_| SnapshotCell::default()).collect(),
             poses: (0..tools).map(|_| Default::default()).collect(),
+            stamps: (0..tools).map(|_| Default::default()).collect(),
             forces: (0..tools).map(|_| SeqCell::default()).collect(),
             epoch: Instant::now(),
             thread: std::sync::OnceLock::new(),
@@ -95,14 +100,28 @@ impl LoopShared {
     }
 
     /// A transport hands over a pose for its tool from source `source` (one writer per source:
-    /// the transport's receiving thread) and wakes the loop. Returns false for a tool id the
-    /// scene lacks or a source out of range.
+    /// the transport's receiving thread) and wakes the loop. The pose is checked here, on the
+    /// receiving thread, so that every refusal is counted even when a newer pose follows before
+    /// the loop runs: an invalid one ([`check_pose`]) and one whose timestamp goes back are
+    /// counted and dropped. Returns false for a tool id the scene lacks or a source out of range.
     pub fn offer_pose(&self, source: usize, pose: &RawToolPose) -> bool {
-        let Some(cell) = self.poses.get(pose.tool_id as usize).and_then(|cells| cells.get(source))
-        else {
+        let tool = pose.tool_id as usize;
+        let (Some(cell), Some(stamp)) = (
+            self.poses.get(tool).and_then(|cells| cells.get(source)),
+            self.stamps.get(tool).and_then(|stamps| stamps.get(source)),
+        ) else {
             return false;
         };
-        cell.write(&pose_words(pose, self.now_ns()));
+        let Ok(pose) = check_pose(pose) else {
+            self.counters.invalid.fetch_add(1, Ordering::Relaxed);
+            return true;
+        };
+        if cell.version() > 0 && pose.timestamp_ns < stamp.load(Ordering::Relaxed) {
+            self.counters.backwards.fetch_add(1, Ordering::Relaxed);
+            return true;
+        }
+        stamp.store(pose.timestamp_ns, Ordering::Relaxed);
+        cell.write(&pose_words(&pose, self.now_ns()));
         if let Some(t) = self.thread.get() {
             t.unpark();
         }

@@ -8,6 +8,7 @@ use crate::server::{self, Options, Running};
 use incise_protocol::raw::RawToolPose;
 use incise_sim::Simulation;
 use incise_transport::{Client, TransportKind};
+use std::fmt::Write as _;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -83,7 +84,10 @@ fn ramp(keys: &[(f64, f64)], t: f64) -> f64 {
 /// 6 mm (it cuts), drawn 2 cm along x, lifted out.
 fn scalpel(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
     let [x, y, top] = s.scalpel;
-    let z = ramp(&[(0.0, 0.01), (0.08, 0.001), (0.25, -0.002), (0.4, -0.006), (0.6, -0.006), (0.7, 0.01)], f);
+    let z = ramp(
+        &[(0.0, 0.01), (0.08, 0.001), (0.25, -0.002), (0.4, -0.006), (0.6, -0.006), (0.7, 0.01)],
+        f,
+    );
     let dx = ramp(&[(0.4, 0.0), (0.6, 0.02)], f);
     ([x + dx, y, top + z], UPRIGHT, 0.0)
 }
@@ -92,7 +96,10 @@ fn scalpel(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
 /// opened and raised.
 fn grasper(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
     let [x, y, top] = s.grasper;
-    let z = ramp(&[(0.5, 0.012), (0.62, -0.001), (0.7, -0.001), (0.82, 0.003), (0.9, 0.003), (0.97, 0.012)], f);
+    let z = ramp(
+        &[(0.5, 0.012), (0.62, -0.001), (0.7, -0.001), (0.82, 0.003), (0.9, 0.003), (0.97, 0.012)],
+        f,
+    );
     let gripper = ramp(&[(0.64, 0.5), (0.66, 0.0), (0.9, 0.0), (0.92, 0.5)], f);
     ([x, y, top + z], POINT_DOWN, gripper)
 }
@@ -100,7 +107,13 @@ fn grasper(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
 type Script = fn(&Stage, f64) -> ([f64; 3], [f64; 4], f64);
 
 /// Drives tool `tool` over `client` at 1 kHz for `duration`.
-fn drive(client: &Client, tool: u32, stage: &Stage, script: Script, duration: Duration) -> ClientReport {
+fn drive(
+    client: &Client,
+    tool: u32,
+    stage: &Stage,
+    script: Script,
+    duration: Duration,
+) -> ClientReport {
     let period = Duration::from_millis(1);
     let start = Instant::now();
     let mut next = start;
@@ -135,7 +148,7 @@ fn drive(client: &Client, tool: u32, stage: &Stage, script: Script, duration: Du
         }
         if let Some(left) = next.checked_duration_since(Instant::now()) {
             std::thread::sleep(left);
-        } else if Instant::now() - next > 10 * period {
+        } else if next.elapsed() > 10 * period {
             next = Instant::now();
         }
     }
@@ -145,16 +158,19 @@ fn drive(client: &Client, tool: u32, stage: &Stage, script: Script, duration: Du
 
 /// Runs the demo for `duration` with `options`; prints progress to stderr and returns the
 /// server's final status and each client's report.
+///
+/// # Panics
+/// If a scripted client's thread panics.
 pub fn run(options: &Options, duration: Duration) -> anyhow::Result<(Running, Vec<ClientReport>)> {
     let scene = crate::scene::load(None)?;
     let stage = stage(&scene)?;
     let running = server::start(&scene, "<embedded demo scene>", options)?;
-    let endpoint = options
-        .zenoh
-        .as_ref()
-        .and_then(|z| z.listen.first().cloned())
-        .ok_or_else(|| anyhow::anyhow!("the demo drives its grasper over zenoh: do not turn zenoh off"))?;
-    let scalpel_kind = if options.iceoryx2 { TransportKind::Iceoryx2 } else { TransportKind::Zenoh };
+    let endpoint =
+        options.zenoh.as_ref().and_then(|z| z.listen.first().cloned()).ok_or_else(|| {
+            anyhow::anyhow!("the demo drives its grasper over zenoh: do not turn zenoh off")
+        })?;
+    let scalpel_kind =
+        if options.iceoryx2 { TransportKind::Iceoryx2 } else { TransportKind::Zenoh };
     let plan: [(u32, TransportKind, Script); 2] =
         [(0, scalpel_kind, scalpel), (1, TransportKind::Zenoh, grasper)];
     let reports = std::thread::scope(|scope| -> anyhow::Result<Vec<ClientReport>> {
@@ -208,8 +224,9 @@ pub fn summary(running: &Running, reports: &[ClientReport], duration: Duration) 
     );
     for r in reports {
         let q = |x: f64| r.quantile(x).map_or("-".into(), |v| format!("{v:.0}"));
-        out += &format!(
-            "{} over {}: {} poses, {} answered within 1 ms; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.2} N\n",
+        let _ = writeln!(
+            out,
+            "{} over {}: {} poses, {} answered within 1 ms; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.2} N",
             r.tool,
             r.transport,
             r.sent,
@@ -228,6 +245,10 @@ pub fn summary(running: &Running, reports: &[ClientReport], duration: Duration) 
         .filter(|(_, n)| *n > 0)
         .map(|(k, n)| format!("{n} {k}"))
         .collect();
-    out += &format!("faults: {}", if faults.is_empty() { "none".into() } else { faults.join(", ") });
+    let _ = write!(
+        out,
+        "faults: {}",
+        if faults.is_empty() { "none".into() } else { faults.join(", ") }
+    );
     out
 }

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 /// force at 1 kHz, and serves tool poses and forces over zenoh (network) and iceoryx2 (shared
 /// memory) at once.
 #[derive(Parser, Debug)]
+#[allow(clippy::struct_excessive_bools, reason = "command-line switches")]
 #[command(version, about, long_about = None)]
 struct Cli {
     /// A scene file (TOML, see deploy/scenes/README.md); without one, the embedded demo organ
@@ -71,7 +72,11 @@ fn main() -> anyhow::Result<()> {
         haptics: HapticSettings { max_force_n: cli.max_force, ..HapticSettings::default() },
     };
     if cli.demo {
-        anyhow::ensure!(cli.scene.is_none(), "--demo runs its own scene; leave out {:?}", cli.scene);
+        anyhow::ensure!(
+            cli.scene.is_none(),
+            "--demo runs its own scene; leave out {:?}",
+            cli.scene
+        );
         anyhow::ensure!(
             cli.duration.is_finite() && cli.duration > 0.0,
             "--duration must be a positive number of seconds"
@@ -86,14 +91,18 @@ fn main() -> anyhow::Result<()> {
     for note in &scene.notes {
         tracing::info!("{note}");
     }
-    let file = cli.scene.as_ref().map_or("<embedded demo scene>".into(), |p| p.display().to_string());
+    let file =
+        cli.scene.as_ref().map_or("<embedded demo scene>".into(), |p| p.display().to_string());
     let running = server::start(&scene, &file, &options)?;
     tracing::info!(
         "serving {} ({} tools: {}) on {}{}",
         running.keys.scene(),
         running.tools.len(),
         running.tools.join(", "),
-        options.zenoh.as_ref().map_or("no zenoh".into(), |z| format!("zenoh {}", z.listen.join(" "))),
+        options
+            .zenoh
+            .as_ref()
+            .map_or("no zenoh".into(), |z| format!("zenoh {}", z.listen.join(" "))),
         if options.iceoryx2 { " and iceoryx2" } else { "" }
     );
     let stop = Arc::new(AtomicBool::new(false));

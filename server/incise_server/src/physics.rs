@@ -159,7 +159,7 @@ fn frame_stats(frame: &Frame, sim: &Simulation, wall: Duration, rate: f64) -> v1
         voxels_removed: c.voxels_removed as u32,
         links_severed: c.links_severed as u32,
         tets_removed: c.tets_removed as u32,
-        triangles: sim.surface().map_or(0, |s| s.triangle_count()) as u32,
+        triangles: sim.surface().map_or(0, incise_sim::OrganSurface::triangle_count) as u32,
         frame_rate_hz: rate,
         solver_iterations: c.solver_iterations as u32,
     }

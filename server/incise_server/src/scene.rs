@@ -66,16 +66,14 @@ stiffness = 300.0
 
 /// The scene at `path`, or the embedded one.
 pub fn load(path: Option<&Path>) -> anyhow::Result<Scene> {
-    match path {
-        Some(path) => incise_scene::read_scene(path)
-            .with_context(|| format!("cannot load the scene {}", path.display())),
-        None => {
-            let config = SceneConfig::from_toml(DEMO_SCENE, "<embedded demo scene>")
-                .context("the embedded scene")?;
-            let volume = config.procedural_volume().context("the embedded scene is procedural")?;
-            Ok(Scene { config, geometry: SceneGeometry::Volume(volume), notes: Vec::new() })
-        }
+    if let Some(path) = path {
+        return incise_scene::read_scene(path)
+            .with_context(|| format!("cannot load the scene {}", path.display()));
     }
+    let config = SceneConfig::from_toml(DEMO_SCENE, "<embedded demo scene>")
+        .context("the embedded scene")?;
+    let volume = config.procedural_volume().context("the embedded scene is procedural")?;
+    Ok(Scene { config, geometry: SceneGeometry::Volume(volume), notes: Vec::new() })
 }
 
 #[cfg(test)]

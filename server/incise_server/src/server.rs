@@ -221,7 +221,12 @@ impl Running {
 }
 
 /// What the `…/info` queryable answers.
-fn scene_info(scene: &Scene, keys: &Keys, sim: &Simulation, haptics: &HapticSettings) -> v1::SceneInfo {
+fn scene_info(
+    scene: &Scene,
+    keys: &Keys,
+    sim: &Simulation,
+    haptics: &HapticSettings,
+) -> v1::SceneInfo {
     let config = &scene.config;
     let tools = config
         .tools

@@ -41,14 +41,14 @@ impl ClientReport {
     }
 }
 
-/// Where the script puts the tools: the organ's top surface height at the scalpel's and the
-/// grasper's x, y.
+/// Where the script puts the tools: the organ's top surface height, settled under gravity, at
+/// the scalpel's and the grasper's x, y.
 struct Stage {
     scalpel: [f64; 3],
     grasper: [f64; 3],
 }
 
-/// The highest surface point within 3 mm of `(x, y)` at rest.
+/// The highest surface point within 3 mm of `(x, y)`.
 fn top_at(sim: &Simulation, x: f64, y: f64) -> f64 {
     let p = sim.surface_positions().expect("the scene has tools, so a surface");
     sim.surface()
@@ -62,7 +62,11 @@ fn top_at(sim: &Simulation, x: f64, y: f64) -> f64 {
 }
 
 fn stage(scene: &incise_scene::Scene) -> anyhow::Result<Stage> {
-    let sim = Simulation::new(&scene.config, &scene.geometry, "<demo>")?;
+    let mut sim = Simulation::new(&scene.config, &scene.geometry, "<demo>")?;
+    // The soft organ sags under its weight by millimetres: aim at its settled surface.
+    for _ in 0..(0.8 / scene.config.dt()) as usize {
+        sim.step(&incise_sim::StepInputs::default())?;
+    }
     let (sx, sy) = (0.035, 0.03);
     let (gx, gy) = (0.035, 0.045);
     Ok(Stage { scalpel: [sx, sy, top_at(&sim, sx, sy)], grasper: [gx, gy, top_at(&sim, gx, gy)] })
@@ -92,7 +96,7 @@ fn scalpel(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
     ([x + dx, y, top + z], UPRIGHT, 0.0)
 }
 
-/// The grasper: lowered open until its hinge is 1 mm into the surface, closed, lifted 4 mm,
+/// The grasper: lowered open until its hinge is 2 mm into the surface, closed, lifted 5 mm,
 /// opened and raised.
 fn grasper(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
     let [x, y, top] = s.grasper;

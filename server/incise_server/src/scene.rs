@@ -5,7 +5,7 @@ use incise_scene::{Scene, SceneGeometry};
 use incise_sim::config::SceneConfig;
 use std::path::Path;
 
-/// The embedded scene: an 8 × 6 × 5 cm organ (3 kPa) holding a stiffer tumour (30 kPa),
+/// The embedded scene: an 8 × 6 × 5 cm organ (6 kPa) holding a stiffer tumour (40 kPa),
 /// resting on its held base, at level 2 (2.5 mm voxels, 1 cm elements) stepped implicitly at
 /// 1 ms; a scalpel whose blade sits just inside its narrow outer shape (it pushes, then cuts
 /// once pressed in) and a grasper whose jaws reach 1 cm from its hinge, where a small ball
@@ -21,13 +21,13 @@ voxels = [32, 24, 20]
 
 [[materials]]
 label = 1
-youngs_modulus = 3000.0
+youngs_modulus = 6000.0
 poisson_ratio = 0.45
 density = 1060.0
 
 [[materials]]
 label = 2
-youngs_modulus = 30000.0
+youngs_modulus = 40000.0
 poisson_ratio = 0.45
 density = 1060.0
 
@@ -46,7 +46,7 @@ max = [1.0, 1.0, 0.01]
 
 [[tools]]
 name = "scalpel"
-stiffness = 20.0
+stiffness = 50.0
 cutting = "remove"
 outer = { shape = "box", half_extents = [0.006, 0.002, 0.008], offset = [0.0, 0.0, 0.008] }
 inner = { shape = "blade", length = 0.012, height = 0.014, thickness = 0.0035, offset = [0.0, 0.0, 0.0005] }

@@ -390,6 +390,17 @@ mod tests {
         EmbeddedPoint::node(id)
     }
 
+    /// The contact of `shape` at `pose` with `points` (each its own node), with no memory.
+    fn found(
+        shape: &Shape,
+        pose: &Pose,
+        previous: Option<(&Pose, f64)>,
+        points: &[(u32, Vec3)],
+    ) -> Contact {
+        let memory = ContactMemory::default();
+        detect(shape, pose, previous, &memory, &SETTINGS, points.iter().copied(), still)
+    }
+
     fn ball() -> Shape {
         Shape::new(Primitive::Sphere { radius: 0.005 }, [0.0; 3]).unwrap()
     }
@@ -455,15 +466,7 @@ mod tests {
     fn a_pressed_ball_pushes_the_points_inside_it_along_its_normal() {
         let points = patch(21, 0.001);
         let pose = Pose::at([0.0, 0.0, 0.004]);
-        let contact = detect(
-            &ball(),
-            &pose,
-            None,
-            &ContactMemory::default(),
-            &SETTINGS,
-            points.iter().copied(),
-            still,
-        );
+        let contact = found(&ball(), &pose, None, &points);
         // The lattice points strictly within √(5² − 4²) = 3 mm of the axis: i² + j² < 9.
         assert_eq!(contact.points.len(), 25);
         let x: Vec<Vec3> = points.iter().map(|p| p.1).collect();
@@ -484,15 +487,7 @@ mod tests {
         let q = [0.99, 0.1, 0.05, 0.0f64];
         let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
         let pose = Pose::new([0.001, 0.0, 0.0035], q.map(|c| c / norm)).unwrap();
-        let contact = detect(
-            &ball(),
-            &pose,
-            None,
-            &ContactMemory::default(),
-            &SETTINGS,
-            points.iter().copied(),
-            still,
-        );
+        let contact = found(&ball(), &pose, None, &points);
         assert!(contact.points.len() > 10);
         let x: Vec<Vec3> = points.iter().map(|p| p.1).collect();
         let lin =
@@ -532,25 +527,9 @@ mod tests {
             Shape::new(Primitive::Cuboid { half_extents: [0.01, 0.01, 0.0005] }, [0.0; 3]).unwrap();
         let from = Pose::at([0.0, 0.0, 0.02]);
         let to = Pose::at([0.0, 0.0, -0.03]);
-        let jumped = detect(
-            &slab,
-            &to,
-            None,
-            &ContactMemory::default(),
-            &SETTINGS,
-            points.iter().copied(),
-            still,
-        );
+        let jumped = found(&slab, &to, None, &points);
         assert!(jumped.points.is_empty(), "without the sweep nothing is in contact");
-        let swept = detect(
-            &slab,
-            &to,
-            Some((&from, 1e-3)),
-            &ContactMemory::default(),
-            &SETTINGS,
-            points.iter().copied(),
-            still,
-        );
+        let swept = found(&slab, &to, Some((&from, 1e-3)), &points);
         assert_eq!(swept.points.len(), points.len());
         for c in &swept.points {
             assert!(c.swept && c.normal == [0.0, 0.0, -1.0]);

@@ -95,9 +95,15 @@ impl Renderer {
     }
 
     /// Offers a pose that arrived at `now_ns`: used if it checks and does not go back in time.
+    /// A pose after the stream went stale starts a new timeline (a restarted driver's clock
+    /// starts again), so only a live stream's timestamps must go forward.
     pub fn offer(&mut self, now_ns: u64, pose: &RawToolPose) -> Result<(), Refused> {
         let checked = check_pose(pose).map_err(Refused::Invalid)?;
-        if let Some((last, _)) = &self.pose
+        let live = |arrived: u64| {
+            now_ns.saturating_sub(arrived) as f64 * 1e-6 <= self.settings.stale_after_ms
+        };
+        if let Some((last, arrived)) = &self.pose
+            && live(*arrived)
             && checked.timestamp_ns < last.timestamp_ns
         {
             return Err(Refused::Backwards {
@@ -362,6 +368,10 @@ mod tests {
             Err(Refused::Backwards { last: 1000, given: 999 })
         ));
         assert_eq!(r.pose().unwrap().sequence, 1);
+        // After the stream went stale, an earlier timestamp starts a new timeline.
+        r.offer(30 * MS, &pose(4, 5, -0.001)).unwrap();
+        assert_eq!(r.pose().unwrap().sequence, 4);
+        r.offer(100 * MS, &nan).unwrap_err();
         // Only refused poses for 60 ms: the force has faded.
         for ms in 1..=60 {
             let _ = r.offer(ms * MS, &nan);

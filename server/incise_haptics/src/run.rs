@@ -24,6 +24,9 @@ const POSE_WORDS: usize = 19;
 /// Words of a force record.
 const FORCE_WORDS: usize = 10;
 
+/// A pose source silent this long (ns) may start a new timeline: its timestamps may restart.
+const TIMELINE_RESET_NS: u64 = 50_000_000;
+
 /// How many pose sources (transports) may drive one tool.
 pub const SOURCES: usize = 2;
 
@@ -116,12 +119,16 @@ impl LoopShared {
             self.counters.invalid.fetch_add(1, Ordering::Relaxed);
             return true;
         };
-        if cell.version() > 0 && pose.timestamp_ns < stamp.load(Ordering::Relaxed) {
+        let now = self.now_ns();
+        // A live stream's timestamps must go forward; one silent for the whole fade may start
+        // again from a new clock (a driver restarted).
+        let live = cell.read().is_some_and(|(w, _)| now.saturating_sub(w[18]) < TIMELINE_RESET_NS);
+        if live && pose.timestamp_ns < stamp.load(Ordering::Relaxed) {
             self.counters.backwards.fetch_add(1, Ordering::Relaxed);
             return true;
         }
         stamp.store(pose.timestamp_ns, Ordering::Relaxed);
-        cell.write(&pose_words(&pose, self.now_ns()));
+        cell.write(&pose_words(&pose, now));
         if let Some(t) = self.thread.get() {
             t.unpark();
         }

@@ -5,7 +5,7 @@
 //! it. A progress line shows while it runs; the summary follows.
 
 use crate::server::{self, Options, Running};
-use incise_protocol::raw::RawToolPose;
+use incise_client::drive::{Report, drive};
 use incise_sim::Simulation;
 use incise_transport::{Client, TransportKind};
 use std::fmt::Write as _;
@@ -17,28 +17,15 @@ const POINT_DOWN: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
 /// Unrotated: the scalpel's edge down, its shaft up.
 const UPRIGHT: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
 
-/// One scripted client's results.
+/// One scripted client's results: the tool, its transport, and what [`drive`] measured.
 #[derive(Clone, Debug, Default)]
 pub struct ClientReport {
-    /// The tool's name and transport.
+    /// The tool's name.
     pub tool: String,
     /// `zenoh` or `iceoryx2`.
     pub transport: &'static str,
-    /// Poses sent.
-    pub sent: u64,
-    /// Round trips measured (poses whose own force came back within the period), µs, sorted.
-    pub rtt_us: Vec<f64>,
-    /// The largest force received (N).
-    pub max_force_n: f64,
-}
-
-impl ClientReport {
-    /// The `q` quantile of the round trips (µs).
-    #[must_use]
-    pub fn quantile(&self, q: f64) -> Option<f64> {
-        let n = self.rtt_us.len();
-        (n > 0).then(|| self.rtt_us[((q * n as f64).ceil() as usize).clamp(1, n) - 1])
-    }
+    /// The round trips and forces.
+    pub report: Report,
 }
 
 /// Where the script puts the tools: the organ's top surface height, settled under gravity, at
@@ -110,56 +97,6 @@ fn grasper(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
 
 type Script = fn(&Stage, f64) -> ([f64; 3], [f64; 4], f64);
 
-/// Drives tool `tool` over `client` at 1 kHz for `duration`.
-fn drive(
-    client: &Client,
-    tool: u32,
-    stage: &Stage,
-    script: Script,
-    duration: Duration,
-) -> ClientReport {
-    let period = Duration::from_millis(1);
-    let start = Instant::now();
-    let mut next = start;
-    let mut report = ClientReport::default();
-    let mut sequence = 0u64;
-    while start.elapsed() < duration {
-        sequence += 1;
-        let f = start.elapsed().as_secs_f64() / duration.as_secs_f64();
-        let (position, orientation, gripper_angle) = script(stage, f);
-        let pose = RawToolPose {
-            sequence,
-            timestamp_ns: start.elapsed().as_nanos() as u64,
-            orientation,
-            gripper_angle,
-            ..RawToolPose::at(tool, position)
-        };
-        let sent = Instant::now();
-        if client.send_pose(&pose).is_err() {
-            continue;
-        }
-        report.sent += 1;
-        next += period;
-        // Wait for this pose's own force until the next pose is due.
-        while let Some(left) = next.checked_duration_since(Instant::now()) {
-            let Some(force) = client.recv_force(left) else { break };
-            let n = force.force.iter().map(|c| c * c).sum::<f64>().sqrt();
-            report.max_force_n = report.max_force_n.max(n);
-            if force.pose_sequence == sequence {
-                report.rtt_us.push(sent.elapsed().as_secs_f64() * 1e6);
-                break;
-            }
-        }
-        if let Some(left) = next.checked_duration_since(Instant::now()) {
-            std::thread::sleep(left);
-        } else if next.elapsed() > 10 * period {
-            next = Instant::now();
-        }
-    }
-    report.rtt_us.sort_by(f64::total_cmp);
-    report
-}
-
 /// Runs the demo for `duration` with `options`; prints progress to stderr and returns the
 /// server's final status and each client's report.
 ///
@@ -183,9 +120,10 @@ pub fn run(options: &Options, duration: Duration) -> anyhow::Result<(Running, Ve
             let client = Client::connect(kind, &running.keys, tool, &endpoint)?;
             let (stage, name) = (&stage, running.tools[tool as usize].clone());
             handles.push(scope.spawn(move || {
-                let mut r = drive(&client, tool, stage, script, duration);
-                (r.tool, r.transport) = (name, kind.name());
-                r
+                let secs = duration.as_secs_f64();
+                let report =
+                    drive(&client, tool, 1000.0, duration, |t| script(stage, t / secs), |_| {});
+                ClientReport { tool: name, transport: kind.name(), report }
             }));
         }
         let start = Instant::now();
@@ -226,13 +164,14 @@ pub fn summary(running: &Running, reports: &[ClientReport], duration: Duration) 
         jitter.quantile_us(0.99).unwrap_or(0.0),
         jitter.max_us(),
     );
-    for r in reports {
+    for c in reports {
+        let r = &c.report;
         let q = |x: f64| r.quantile(x).map_or("-".into(), |v| format!("{v:.0}"));
         let _ = writeln!(
             out,
             "{} over {}: {} poses, {} answered within 1 ms; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.2} N",
-            r.tool,
-            r.transport,
+            c.tool,
+            c.transport,
             r.sent,
             r.rtt_us.len(),
             q(0.5),

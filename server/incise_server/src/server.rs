@@ -279,12 +279,17 @@ fn scene_info(
     }
 }
 
-/// The organ's bounding box at rest (m).
+/// The organ's bounding box at rest (m): its surface's where it has one, else its nodes'.
 fn bounds(sim: &Simulation) -> ([f64; 3], [f64; 3]) {
-    let x = &sim.state().x;
+    let points: Vec<[f64; 3]> = match (sim.surface(), sim.surface_positions()) {
+        (Some(surface), Some(p)) => {
+            surface.live_vertices().iter().map(|&v| p[v as usize]).collect()
+        }
+        _ => sim.state().x.clone(),
+    };
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
-    for p in x {
+    for p in &points {
         for k in 0..3 {
             lo[k] = lo[k].min(p[k]);
             hi[k] = hi[k].max(p[k]);

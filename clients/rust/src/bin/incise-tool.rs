@@ -1,0 +1,143 @@
+//! `incise-tool`: a scripted haptic device. Connects to a running `incise-server` over zenoh or
+//! iceoryx2, drives one tool along a trajectory at a fixed rate, prints the forces it receives
+//! and a summary of the pose → force round trips.
+
+use anyhow::{Context, bail};
+use clap::Parser;
+use incise_client::drive::{Report, drive};
+use incise_client::script::{Script, parse_csv};
+use incise_client::{Client, Keys, TransportKind};
+use std::time::Duration;
+
+/// Drives one tool of a running incise-server along a scripted trajectory and reports the
+/// forces and round trips.
+#[derive(Parser, Debug)]
+#[command(version, about, long_about = None)]
+struct Cli {
+    /// `zenoh` (network) or `iceoryx2` (shared memory, same machine).
+    #[arg(long, default_value = "zenoh")]
+    transport: TransportKind,
+    /// The server's zenoh endpoint (also asked for the scene's description).
+    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+    connect: String,
+    /// The scene's name, as the server's keys carry it.
+    #[arg(long, default_value = "demo_organ")]
+    scene: String,
+    /// The tool to drive (its id in the scene).
+    #[arg(long, default_value_t = 0)]
+    tool: u32,
+    /// `press`, `press-cut`, `circle`, or a CSV file of poses (t, x, y, z, qw, qx, qy, qz,
+    /// gripper).
+    #[arg(long, default_value = "press")]
+    script: String,
+    /// The surface point the scripts work at, `x,y,z` in metres (default: the top of the organ,
+    /// from the server's scene description).
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    at: Option<Vec<f64>>,
+    /// How far the scripts press in (m).
+    #[arg(long, default_value_t = 0.004)]
+    depth: f64,
+    /// Seconds to run.
+    #[arg(long, default_value_t = 4.0)]
+    duration: f64,
+    /// Poses per second.
+    #[arg(long, default_value_t = 1000.0)]
+    rate: f64,
+    /// Print every n-th force (0: none).
+    #[arg(long, default_value_t = 250)]
+    print_every: u64,
+    /// End with one line of JSON: `transport`, `samples`, `rtt_us_p50`, `rtt_us_p99`,
+    /// `rtt_us_p999`, `rtt_us_max`, `sent`, `max_force_n`.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    if !(cli.duration.is_finite() && cli.duration > 0.0) {
+        bail!("--duration must be a positive number of seconds");
+    }
+    if !(cli.rate.is_finite() && cli.rate > 0.0 && cli.rate <= 20_000.0) {
+        bail!("--rate must be between 0 and 20000 poses per second");
+    }
+    let keys = Keys::new(&cli.scene)?;
+    let at = match &cli.at {
+        Some(v) if v.len() == 3 && v.iter().all(|c| c.is_finite()) => [v[0], v[1], v[2]],
+        Some(v) => bail!("--at takes three finite numbers, x,y,z in metres, not {v:?}"),
+        None => {
+            let probe =
+                incise_transport::client::ZenohClient::connect(&keys, cli.tool, &cli.connect)?;
+            let info = probe.scene_info(Duration::from_secs(5)).with_context(|| {
+                format!(
+                    "no scene {} answered at {} (give --at x,y,z to go without)",
+                    cli.scene, cli.connect
+                )
+            })?;
+            [
+                0.5 * (info.bounds_min_x + info.bounds_max_x),
+                0.5 * (info.bounds_min_y + info.bounds_max_y),
+                info.bounds_max_z,
+            ]
+        }
+    };
+    let script = match cli.script.as_str() {
+        "press" => Script::Press { at, depth: cli.depth },
+        "press-cut" => Script::PressCut { at, depth: cli.depth, stroke: 0.02 },
+        "circle" => Script::Circle { at, radius: 0.005, depth: cli.depth, period: 1.0 },
+        file => {
+            let text = std::fs::read_to_string(file).with_context(|| {
+                format!("--script {file}: not press, press-cut, circle or a readable CSV file")
+            })?;
+            Script::Csv(parse_csv(&text, file).map_err(anyhow::Error::msg)?)
+        }
+    };
+    let client = Client::connect(cli.transport, &keys, cli.tool, &cli.connect)?;
+    let duration = Duration::from_secs_f64(cli.duration);
+    let mut count = 0u64;
+    let report = drive(
+        &client,
+        cli.tool,
+        cli.rate,
+        duration,
+        |t| script.pose_at(t, cli.duration),
+        |f| {
+            count += 1;
+            if cli.print_every > 0 && count.is_multiple_of(cli.print_every) {
+                println!(
+                    "pose {:>6}: force ({:+.3}, {:+.3}, {:+.3}) N, flags {:#x}",
+                    f.pose_sequence, f.force[0], f.force[1], f.force[2], f.flags
+                );
+            }
+        },
+    );
+    print_summary(&cli, &report);
+    Ok(())
+}
+
+fn print_summary(cli: &Cli, r: &Report) {
+    let q = |x: f64| r.quantile(x).unwrap_or(f64::NAN);
+    println!(
+        "{} poses over {}, {} answered before the next; round trip p50 {:.0} µs, p99 {:.0} µs, p99.9 {:.0} µs, max {:.0} µs; max force {:.3} N",
+        r.sent,
+        cli.transport.name(),
+        r.rtt_us.len(),
+        q(0.5),
+        q(0.99),
+        q(0.999),
+        q(1.0),
+        r.max_force_n
+    );
+    if cli.json {
+        let json = serde_json::json!({
+            "transport": cli.transport.name(),
+            "samples": r.rtt_us.len(),
+            "sent": r.sent,
+            "rtt_us_p50": r.quantile(0.5),
+            "rtt_us_p99": r.quantile(0.99),
+            "rtt_us_p999": r.quantile(0.999),
+            "rtt_us_max": r.quantile(1.0),
+            "max_force_n": r.max_force_n,
+        });
+        println!("{json}");
+    }
+}

@@ -1,0 +1,65 @@
+//! `incise-tool` as its own process against a real server (started in this test's process on
+//! loopback, both transports): it presses the organ over each transport, every answered pose is
+//! timed, the tissue pushes back; and a broken pose file is refused naming its line.
+
+use incise_server::server::{self, Options};
+use incise_transport::zenoh_link::Endpoints;
+use std::process::Command;
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+#[test]
+fn incise_tool_presses_the_organ_over_both_transports() {
+    let port = free_port();
+    let options = Options { zenoh: Some(Endpoints::listen_loopback(port)), ..Options::default() };
+    let scene = incise_server::scene::load(None).unwrap();
+    let running = server::start(&scene, "<embedded>", &options).unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    for transport in ["iceoryx2", "zenoh"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_incise-tool"))
+            .args(["--transport", transport, "--connect", &endpoint, "--tool", "1"])
+            .args(["--script", "press", "--depth", "0.004", "--duration", "2", "--json"])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{transport}: {}\n{stdout}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let last = stdout.lines().last().unwrap();
+        let j: serde_json::Value = serde_json::from_str(last).unwrap();
+        println!("{transport}: {last}");
+        assert_eq!(j["transport"], transport);
+        assert!(j["sent"].as_u64().unwrap() > 500, "{j}");
+        assert!(j["samples"].as_u64().unwrap() > 100, "{j}");
+        assert!(j["max_force_n"].as_f64().unwrap() > 0.0, "never in contact: {j}");
+        for key in ["rtt_us_p50", "rtt_us_p99", "rtt_us_p999", "rtt_us_max"] {
+            assert!(j[key].as_f64().unwrap() > 0.0, "{key}: {j}");
+        }
+    }
+    running.stop();
+}
+
+#[test]
+fn a_broken_pose_file_is_refused_naming_its_line() {
+    let dir = std::env::temp_dir().join(format!("incise_tool_csv_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("poses.csv");
+    std::fs::write(
+        &file,
+        "t,x,y,z,qw,qx,qy,qz,gripper\n0,0,0,0.05,1,0,0,0,0\n0.5,0,0,oops,1,0,0,0,0\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_incise-tool"))
+        .args(["--script", file.to_str().unwrap(), "--at", "0,0,0", "--duration", "0.1"])
+        .args(["--connect", &format!("tcp/127.0.0.1:{}", free_port())])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("poses.csv:3: column 4 is \"oops\""), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -4,6 +4,7 @@
 mod coexist;
 mod frame;
 mod grid_report;
+mod latency;
 mod peers;
 mod plot;
 mod progress;
@@ -43,6 +44,16 @@ enum Command {
     /// and retracts, and a second blade separates a piece; per-stage times (median, p99), the
     /// full-frame rate and the cut stroke's grid, condensation and re-mesh time.
     Frame(frame::FrameArgs),
+    /// Pose → force round trip over zenoh or iceoryx2 between a real server on the liver and a
+    /// client in another process sending poses at 1 kHz while it presses and cuts (p50, p99,
+    /// p99.9, max), and the haptic thread's period jitter meanwhile.
+    Latency(latency::LatencyArgs),
+    /// `latency`'s server process (started by `latency`).
+    #[command(hide = true)]
+    LatencyServer(latency::ServerRole),
+    /// `latency`'s client process (started by `latency`).
+    #[command(hide = true)]
+    LatencyClient(latency::ClientRole),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -53,5 +64,8 @@ fn main() -> anyhow::Result<()> {
         Command::TensorMass(args) => tensor_mass::run(&args),
         Command::Coexist(args) => coexist::run(&args),
         Command::Frame(args) => frame::run(&args),
+        Command::Latency(args) => latency::run(&args),
+        Command::LatencyServer(role) => latency::serve(&role),
+        Command::LatencyClient(role) => latency::client(&role),
     }
 }

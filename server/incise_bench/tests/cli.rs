@@ -431,3 +431,22 @@ fn frame_report_json_has_the_contract_keys_and_every_frame_is_finite() {
         assert!(cut > 0, "{scene}: the scripted tools cut nothing");
     }
 }
+
+/// `incise-bench latency` over each transport, briefly: a server and a client process run, the
+/// round trips are measured, and the last line holds the contract's keys.
+#[test]
+fn latency_report_json_has_the_contract_keys() {
+    for transport in ["iceoryx2", "zenoh"] {
+        let out = bench()
+            .args(["latency", "--transport", transport, "--duration", "1", "--json"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{transport}: {}", String::from_utf8_lossy(&out.stderr));
+        let j = last_json(&out);
+        assert_eq!(j["transport"], transport);
+        for key in ["rtt_us_p50", "rtt_us_p99", "rtt_us_p999", "jitter_us_p99"] {
+            assert!(j[key].as_f64().is_some_and(|v| v > 0.0), "{transport}: {key} in {j}");
+        }
+        assert!(j["samples"].as_u64().unwrap() > 100, "{transport}: {j}");
+    }
+}

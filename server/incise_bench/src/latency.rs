@@ -1,0 +1,255 @@
+//! `incise-bench latency`: a real server on the liver (`deploy/scenes/liver_tools.toml`) and a
+//! client in another process, over zenoh or iceoryx2. The client sends its scalpel's poses at
+//! 1 kHz for a bounded time while it presses and cuts, and times each pose's round trip to the
+//! force that answers it; the server measures its haptic thread's period jitter while the
+//! physics runs. Both processes are this program, started again in a hidden role
+//! (`latency-server`, `latency-client`), so the one command needs nothing else built.
+
+use anyhow::{Context, bail};
+use incise_client::drive::drive;
+use incise_client::script::Script;
+use incise_client::{Client, Keys, TransportKind};
+use incise_server::server::{self, Options};
+use incise_transport::zenoh_link::Endpoints;
+use std::io::{BufRead, BufReader, Read};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// `latency`'s options.
+#[derive(clap::Args, Debug)]
+pub struct LatencyArgs {
+    /// `iceoryx2` (shared memory) or `zenoh` (loopback TCP).
+    #[arg(long, default_value = "iceoryx2")]
+    transport: TransportKind,
+    /// The scene the server runs (it must have a tool 0).
+    #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/scenes/liver_tools.toml"))]
+    scene: String,
+    /// Seconds of poses (bounded: at most 60).
+    #[arg(long, default_value_t = 5.0)]
+    duration: f64,
+    /// End with one line of JSON: `transport`, `rtt_us_p50`, `rtt_us_p99`, `rtt_us_p999`,
+    /// `rtt_us_max`, `jitter_us_p99`, `samples`.
+    #[arg(long)]
+    json: bool,
+}
+
+/// The hidden server role's options.
+#[derive(clap::Args, Debug)]
+pub struct ServerRole {
+    #[arg(long)]
+    scene: String,
+    #[arg(long)]
+    listen: String,
+}
+
+/// The hidden client role's options.
+#[derive(clap::Args, Debug)]
+pub struct ClientRole {
+    #[arg(long)]
+    transport: TransportKind,
+    #[arg(long)]
+    connect: String,
+    #[arg(long)]
+    scene_name: String,
+    #[arg(long)]
+    duration: f64,
+}
+
+/// A half turn about x: the tool's +z (its blade, from the edge at its origin) points down
+/// the grid's −z, so the edge leads upwards.
+const BLADE_UP: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
+
+fn free_port() -> anyhow::Result<u16> {
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
+}
+
+/// Runs the report.
+pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
+    if !(args.duration.is_finite() && args.duration > 0.0 && args.duration <= 60.0) {
+        bail!("--duration must be between 0 and 60 s");
+    }
+    let scene = incise_scene::read_scene(args.scene.as_ref())
+        .with_context(|| format!("--scene {}", args.scene))?;
+    anyhow::ensure!(
+        !scene.config.tools.is_empty(),
+        "--scene {}: it has no tool to drive",
+        args.scene
+    );
+    let name = scene.config.name.clone();
+    let exe = std::env::current_exe()?;
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+    eprintln!(
+        "latency: server on {} ({endpoint}), client over {}",
+        args.scene,
+        args.transport.name()
+    );
+    let mut server = Command::new(&exe)
+        .args(["latency-server", "--scene", &args.scene, "--listen", &endpoint])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()?;
+    let mut lines = BufReader::new(server.stdout.take().expect("piped"));
+    let mut line = String::new();
+    lines.read_line(&mut line)?;
+    if line.trim() != "ready" {
+        let _ = server.kill();
+        bail!("the server did not start: {line}");
+    }
+    let client = Command::new(&exe)
+        .args(["latency-client", "--transport", args.transport.name(), "--connect", &endpoint])
+        .args(["--scene-name", &name, "--duration", &args.duration.to_string()])
+        .output()?;
+    drop(server.stdin.take()); // the server stops when its input closes
+    let mut rest = String::new();
+    lines.read_to_string(&mut rest)?;
+    server.wait()?;
+    anyhow::ensure!(
+        client.status.success(),
+        "the client failed: {}",
+        String::from_utf8_lossy(&client.stderr)
+    );
+    let parse = |text: &str, who: &str| -> anyhow::Result<serde_json::Value> {
+        let last = text.lines().last().with_context(|| format!("the {who} printed nothing"))?;
+        serde_json::from_str(last).with_context(|| format!("the {who}'s last line: {last}"))
+    };
+    let c = parse(&String::from_utf8_lossy(&client.stdout), "client")?;
+    let s = parse(&rest, "server")?;
+    let f = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+    println!(
+        "latency over {} ({} for {:.1} s, client and server in separate processes)",
+        args.transport.name(),
+        args.scene,
+        args.duration
+    );
+    println!("pose → force round trip: {} samples of {} poses", c["samples"], c["sent"]);
+    println!(
+        "  p50 {:.0} µs   p99 {:.0} µs   p99.9 {:.0} µs   max {:.0} µs",
+        f(&c, "rtt_us_p50"),
+        f(&c, "rtt_us_p99"),
+        f(&c, "rtt_us_p999"),
+        f(&c, "rtt_us_max")
+    );
+    println!(
+        "haptic period jitter while the physics ran: p50 {:.0} µs   p99 {:.0} µs   max {:.0} µs ({} physics frames, {} late)",
+        f(&s, "jitter_us_p50"),
+        f(&s, "jitter_us_p99"),
+        f(&s, "jitter_us_max"),
+        s["frames"],
+        s["late"]
+    );
+    println!("max force {:.3} N; voxels cut {}", f(&c, "max_force_n"), s["removed"]);
+    if args.json {
+        let json = serde_json::json!({
+            "transport": args.transport.name(),
+            "rtt_us_p50": c["rtt_us_p50"],
+            "rtt_us_p99": c["rtt_us_p99"],
+            "rtt_us_p999": c["rtt_us_p999"],
+            "rtt_us_max": c["rtt_us_max"],
+            "jitter_us_p99": s["jitter_us_p99"],
+            "samples": c["samples"],
+            "sent": c["sent"],
+            "max_force_n": c["max_force_n"],
+            "frames": s["frames"],
+        });
+        println!("{json}");
+    }
+    Ok(())
+}
+
+/// The server role: serves the scene until its standard input closes, then prints its
+/// statistics as one JSON line.
+pub fn serve(role: &ServerRole) -> anyhow::Result<()> {
+    let scene = incise_scene::read_scene(role.scene.as_ref())?;
+    let options = Options {
+        zenoh: Some(Endpoints {
+            listen: vec![role.listen.clone()],
+            connect: Vec::new(),
+            multicast_scouting: false,
+        }),
+        ..Options::default()
+    };
+    let running = server::start(&scene, &role.scene, &options)?;
+    println!("ready");
+    let mut sink = Vec::new();
+    let _ = std::io::stdin().read_to_end(&mut sink);
+    let get = |a: &std::sync::atomic::AtomicU64| a.load(std::sync::atomic::Ordering::Relaxed);
+    let j = running.shared.jitter();
+    let json = serde_json::json!({
+        "jitter_us_p50": j.quantile_us(0.5),
+        "jitter_us_p99": j.quantile_us(0.99),
+        "jitter_us_max": j.max_us(),
+        "frames": get(&running.physics.frames),
+        "late": get(&running.physics.late),
+        "removed": get(&running.physics.removed),
+    });
+    running.stop();
+    println!("{json}");
+    Ok(())
+}
+
+/// The client role: brings tool 0 up to the organ's underside, presses and cuts for the rest of
+/// the duration, then prints the round trips as one JSON line.
+pub fn client(role: &ClientRole) -> anyhow::Result<()> {
+    let keys = Keys::new(&role.scene_name)?;
+    // The server answers its scene description once it is up; ask until it does.
+    let until = Instant::now() + Duration::from_secs(30);
+    let info = loop {
+        if let Ok(z) = incise_transport::client::ZenohClient::connect(&keys, 0, &role.connect)
+            && let Ok(info) = z.scene_info(Duration::from_millis(500))
+        {
+            break info;
+        }
+        anyhow::ensure!(Instant::now() < until, "no server answered at {}", role.connect);
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    // From 1 cm under the organ's middle, blade up, 2 cm/s up until the tissue pushes back (the
+    // organ is held at its top, so its underside is where a tool meets it); from there the
+    // script presses 12 mm in and cuts a 2 cm stroke along x.
+    let (x, y) = (
+        0.5 * (info.bounds_min_x + info.bounds_max_x),
+        0.5 * (info.bounds_min_y + info.bounds_max_y),
+    );
+    let start_z = info.bounds_min_z - 0.01;
+    let client = Client::connect(role.transport, &keys, 0, &role.connect)?;
+    let duration = Duration::from_secs_f64(role.duration);
+    let touched = std::cell::Cell::new(None::<(f64, f64)>);
+    let last_t = std::cell::Cell::new(0.0);
+    let report = drive(
+        &client,
+        0,
+        1000.0,
+        duration,
+        |t| {
+            last_t.set(t);
+            let (position, _, gripper) = match touched.get() {
+                None => ([x, y, start_z + 0.02 * t], BLADE_UP, 0.0),
+                Some((z, t0)) => {
+                    let left = (role.duration - t0).max(1e-3);
+                    let script = Script::PressCut { at: [x, y, 0.0], depth: 0.012, stroke: 0.02 };
+                    let (p, _, g) = script.pose_at(t - t0, left);
+                    // The script presses down (−z); from below, in is up.
+                    ([p[0], p[1], z - p[2]], BLADE_UP, g)
+                }
+            };
+            (position, BLADE_UP, gripper)
+        },
+        |f| {
+            if touched.get().is_none() && f.force.iter().any(|c| c.abs() > 1e-4) {
+                let t = last_t.get();
+                touched.set(Some((start_z + 0.02 * t, t)));
+            }
+        },
+    );
+    let json = serde_json::json!({
+        "samples": report.rtt_us.len(),
+        "sent": report.sent,
+        "rtt_us_p50": report.quantile(0.5),
+        "rtt_us_p99": report.quantile(0.99),
+        "rtt_us_p999": report.quantile(0.999),
+        "rtt_us_max": report.quantile(1.0),
+        "max_force_n": report.max_force_n,
+    });
+    println!("{json}");
+    Ok(())
+}

@@ -169,7 +169,11 @@ fn a_server_process_answers_poses_refuses_bad_input_fades_and_stops_cleanly() {
         (top - grip_depth) * 1e3
     );
 
-    // Bad input over both transports.
+    // Bad input over both transports. The scalpel's stream is made live again first: a
+    // timestamp going back is refused only within a live stream (one silent for 50 ms may be a
+    // restarted driver starting a new clock).
+    seq += 1;
+    let _ = ask(&shm, RawToolPose::at(0, [cx, cy, depth]), seq);
     let mut nan = RawToolPose::at(0, [cx, cy, depth]);
     nan.position[2] = f64::NAN;
     nan.timestamp_ns = seq + 1;
@@ -233,8 +237,8 @@ fn a_server_process_answers_poses_refuses_bad_input_fades_and_stops_cleanly() {
     let last_status =
         log.lines().rev().find(|l| l.contains("stopping:")).expect("a final status line");
     println!("{last_status}");
-    // 2 refused by the haptic loop's checks (NaN, scaled quaternion) + 1 backwards, 3 garbage
-    // messages, 1 unknown tool.
+    // 2 refused by the pose checks (NaN, scaled quaternion) + 1 backwards, 3 garbage messages,
+    // 1 unknown tool.
     let refused: u64 = last_status
         .split("poses ")
         .nth(1)

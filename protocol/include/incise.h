@@ -52,6 +52,24 @@ typedef struct InciseForce {
     uint32_t flags;               /* INCISE_FORCE_* bits */
 } InciseForce;
 
+/*
+ * The client library (libincise_c, clients/c): one tool's connection to incise-server.
+ *
+ * incise_connect: transport "zenoh" or "iceoryx2"; scene as the server names it; the tool's id;
+ *   endpoint "tcp/HOST:PORT" for zenoh (may be NULL for iceoryx2). NULL on failure.
+ * incise_send_pose: 0 sent, -1 failed.
+ * incise_recv_force: waits up to timeout_us; 1 with *out set, 0 none came, -1 failed.
+ * incise_last_error: the calling thread's last error message.
+ */
+typedef struct InciseClient InciseClient;
+
+InciseClient *incise_connect(const char *transport, const char *scene, uint32_t tool,
+                             const char *endpoint);
+int32_t incise_send_pose(const InciseClient *client, const IncisePose *pose);
+int32_t incise_recv_force(const InciseClient *client, InciseForce *out, uint32_t timeout_us);
+void incise_disconnect(InciseClient *client);
+const char *incise_last_error(void);
+
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
 _Static_assert(sizeof(IncisePose) == 144, "IncisePose is 144 bytes");
 _Static_assert(offsetof(IncisePose, position) == 16, "IncisePose.position");

@@ -50,7 +50,10 @@ pub struct Row {
     pub pose: PoseAt,
 }
 
-fn ramp(keys: &[(f64, f64)], t: f64) -> f64 {
+/// A piecewise-linear ramp through key frames `(t, value)`, held before the first and after the
+/// last: the scripts' building block.
+#[must_use]
+pub fn ramp(keys: &[(f64, f64)], t: f64) -> f64 {
     match keys.iter().position(|&(k, _)| k > t) {
         None => keys.last().map_or(0.0, |k| k.1),
         Some(0) => keys[0].1,

@@ -6,6 +6,7 @@
 
 use crate::server::{self, Options, Running};
 use incise_client::drive::{Report, drive};
+use incise_client::script::ramp;
 use incise_sim::Simulation;
 use incise_transport::{Client, TransportKind};
 use std::fmt::Write as _;
@@ -57,18 +58,6 @@ fn stage(scene: &incise_scene::Scene) -> anyhow::Result<Stage> {
     let (sx, sy) = (0.035, 0.03);
     let (gx, gy) = (0.035, 0.045);
     Ok(Stage { scalpel: [sx, sy, top_at(&sim, sx, sy)], grasper: [gx, gy, top_at(&sim, gx, gy)] })
-}
-
-/// A linear ramp between key frames `(t, value)` (held before the first and after the last).
-fn ramp(keys: &[(f64, f64)], t: f64) -> f64 {
-    match keys.iter().position(|&(k, _)| k > t) {
-        None => keys.last().map_or(0.0, |k| k.1),
-        Some(0) => keys[0].1,
-        Some(i) => {
-            let ((t0, a), (t1, b)) = (keys[i - 1], keys[i]);
-            a + (b - a) * (t - t0) / (t1 - t0)
-        }
-    }
 }
 
 /// The scalpel at time fraction `f` of the demo: down to the surface, pressed 2 mm (it pushes),

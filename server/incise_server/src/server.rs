@@ -143,15 +143,12 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     let forces = sender.thread().clone();
     threads.push(sender);
     threads.push({
-        let (shared, stop) = (Arc::clone(&shared), Arc::clone(&stop));
-        let (settings, wake) = (options.haptics, Wake(forces.clone()));
-        std::thread::Builder::new().name("incise-haptics".into()).spawn(move || {
-            let mut wake = wake;
-            let haptics = HapticLoop::new(Arc::clone(&shared), settings);
-            // The loop stops through `LoopShared::stop`, which `Running::stop` calls.
-            drop(stop);
-            haptics.run(&mut wake);
-        })?
+        // The loop stops through `LoopShared::stop`, which `Running::stop` calls.
+        let haptics = HapticLoop::new(Arc::clone(&shared), options.haptics);
+        let mut wake = Wake(forces.clone());
+        std::thread::Builder::new()
+            .name("incise-haptics".into())
+            .spawn(move || haptics.run(&mut wake))?
     });
     threads.push({
         let (shared, transports, stats, stop) = (

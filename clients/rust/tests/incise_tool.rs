@@ -6,12 +6,17 @@ use incise_server::server::{self, Options};
 use incise_transport::zenoh_link::Endpoints;
 use std::process::Command;
 
+/// The servers these tests start all serve the scene `demo_organ`, and iceoryx2 services are
+/// named by scene: two at once would share them. The tests that start one take turns.
+static ONE_SERVER: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
 #[test]
 fn incise_tool_presses_the_organ_over_both_transports() {
+    let _turn = ONE_SERVER.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let port = free_port();
     let options = Options { zenoh: Some(Endpoints::listen_loopback(port)), ..Options::default() };
     let scene = incise_server::scene::load(None).unwrap();
@@ -62,4 +67,62 @@ fn a_broken_pose_file_is_refused_naming_its_line() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("poses.csv:3: column 4 is \"oops\""), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A client killed with SIGKILL while it presses the organ: the server stays up, and the tool's
+/// force, watched by a second client that only listens, fades. Every force the server computed
+/// 50 ms or more (its own clock) after the last one answering a live pose is zero.
+#[test]
+fn a_client_killed_mid_contact_leaves_a_force_that_fades_to_zero() {
+    use incise_client::{Client, Keys, TransportKind};
+    use incise_protocol::v1::ForceFlag;
+    use std::time::{Duration, Instant};
+    let _turn = ONE_SERVER.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+
+    let port = free_port();
+    let options = Options { zenoh: Some(Endpoints::listen_loopback(port)), ..Options::default() };
+    let scene = incise_server::scene::load(None).unwrap();
+    let running = server::start(&scene, "<embedded>", &options).unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let watcher =
+        Client::connect(TransportKind::Zenoh, &Keys::new("demo_organ").unwrap(), 1, &endpoint)
+            .unwrap();
+    let mut tool = Command::new(env!("CARGO_BIN_EXE_incise-tool"))
+        .args(["--transport", "iceoryx2", "--connect", &endpoint, "--tool", "1"])
+        .args(["--script", "press", "--depth", "0.004", "--duration", "20", "--print-every", "0"])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Watch until the tool is in contact (a live force, not stale, pushing).
+    let until = Instant::now() + Duration::from_mins(1);
+    loop {
+        if let Some(f) = watcher.recv_force(Duration::from_millis(100))
+            && f.flags & ForceFlag::Stale as u32 == 0
+            && f.force[2] > 1e-3
+        {
+            break;
+        }
+        assert!(Instant::now() < until, "the tool never pressed the organ");
+    }
+    tool.kill().unwrap();
+    tool.wait().unwrap();
+    let mut last_live = 0u64;
+    let until = Instant::now() + Duration::from_secs(10);
+    let zero = loop {
+        let f = watcher.recv_force(Duration::from_millis(200)).expect("forces keep coming");
+        assert!(f.force.iter().all(|c| c.is_finite()));
+        if f.flags & ForceFlag::Stale as u32 == 0 {
+            last_live = f.timestamp_ns;
+        } else if f.force.iter().all(|&c| c == 0.0) {
+            break f;
+        }
+        let after_ms = f.timestamp_ns.saturating_sub(last_live) as f64 * 1e-6;
+        assert!(after_ms < 50.0 || f.force.iter().all(|&c| c == 0.0), "{after_ms} ms: {f:?}");
+        assert!(Instant::now() < until, "the force never faded");
+    };
+    println!(
+        "zero {:.1} ms (server clock) after the last live force",
+        (zero.timestamp_ns - last_live) as f64 * 1e-6
+    );
+    running.stop();
 }

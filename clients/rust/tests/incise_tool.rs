@@ -14,14 +14,20 @@ fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
-#[test]
-fn incise_tool_presses_the_organ_over_both_transports() {
-    let _turn = ONE_SERVER.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+/// The embedded scene served on a free loopback port, once the other tests' servers are gone:
+/// the turn, the server and its zenoh endpoint.
+fn demo_server() -> (std::sync::MutexGuard<'static, ()>, server::Running, String) {
+    let turn = ONE_SERVER.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let port = free_port();
     let options = Options { zenoh: Some(Endpoints::listen_loopback(port)), ..Options::default() };
     let scene = incise_server::scene::load(None).unwrap();
     let running = server::start(&scene, "<embedded>", &options).unwrap();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
+    (turn, running, format!("tcp/127.0.0.1:{port}"))
+}
+
+#[test]
+fn incise_tool_presses_the_organ_over_both_transports() {
+    let (_turn, running, endpoint) = demo_server();
     for transport in ["iceoryx2", "zenoh"] {
         let out = Command::new(env!("CARGO_BIN_EXE_incise-tool"))
             .args(["--transport", transport, "--connect", &endpoint, "--tool", "1"])
@@ -77,13 +83,7 @@ fn a_client_killed_mid_contact_leaves_a_force_that_fades_to_zero() {
     use incise_client::{Client, Keys, TransportKind};
     use incise_protocol::v1::ForceFlag;
     use std::time::{Duration, Instant};
-    let _turn = ONE_SERVER.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-
-    let port = free_port();
-    let options = Options { zenoh: Some(Endpoints::listen_loopback(port)), ..Options::default() };
-    let scene = incise_server::scene::load(None).unwrap();
-    let running = server::start(&scene, "<embedded>", &options).unwrap();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let (_turn, running, endpoint) = demo_server();
     let watcher =
         Client::connect(TransportKind::Zenoh, &Keys::new("demo_organ").unwrap(), 1, &endpoint)
             .unwrap();

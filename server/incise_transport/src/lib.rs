@@ -90,6 +90,16 @@ pub struct Faults {
 }
 
 impl Faults {
+    /// Counts a refused pose.
+    pub fn count(&self, bad: &BadPose) {
+        let counter = match bad {
+            BadPose::Oversized(_) => &self.oversized,
+            BadPose::Malformed(_) => &self.malformed,
+            BadPose::Incomplete(_) => &self.incomplete,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// The counts, in field order.
     #[must_use]
     pub fn snapshot(&self) -> [(&'static str, u64); 6] {
@@ -126,18 +136,6 @@ pub fn decode_pose(bytes: &[u8]) -> Result<RawToolPose, BadPose> {
     }
     let pose = v1::ToolPose::decode(bytes).map_err(|e| BadPose::Malformed(e.to_string()))?;
     RawToolPose::try_from(&pose).map_err(BadPose::Incomplete)
-}
-
-impl Faults {
-    /// Counts a refused pose.
-    pub fn count(&self, bad: &BadPose) {
-        let counter = match bad {
-            BadPose::Oversized(_) => &self.oversized,
-            BadPose::Malformed(_) => &self.malformed,
-            BadPose::Incomplete(_) => &self.incomplete,
-        };
-        counter.fetch_add(1, Ordering::Relaxed);
-    }
 }
 
 /// The server's side of every transport it serves.

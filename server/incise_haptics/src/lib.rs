@@ -27,5 +27,5 @@ pub mod run;
 pub mod snapshot;
 
 pub use render::{HapticSettings, Renderer};
-pub use run::{ForceSink, HapticLoop, Jitter, LoopShared};
+pub use run::{HapticLoop, Jitter, LoopIo, LoopShared, Waker};
 pub use snapshot::ToolSnapshot;

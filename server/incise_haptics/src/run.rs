@@ -3,11 +3,14 @@
 //! renders each tool's force, and hands it to the transports.
 //!
 //! Everything it touches is fixed-size and shared through [`LoopShared`]: the physics thread
-//! writes each tool's [`ToolSnapshot`] into a seqlock cell, the transports' receiving threads
-//! write poses into per-tool, per-source cells and unpark the thread, and the thread writes each
-//! force into the tool's output cell and calls [`ForceSink::forces_ready`]. No allocation, lock
-//! or log on that path: counters are atomics, and the period's jitter goes into a fixed
-//! histogram.
+//! writes each tool's [`ToolSnapshot`] into a seqlock cell, the transports write poses into
+//! per-tool, per-source cells, and the thread writes each force into the tool's output cell.
+//! How the thread waits and where its forces go is its [`LoopIo`]: by default it parks and a
+//! pose from another thread unparks it; a transport that can be served from the haptic thread
+//! itself (shared memory) instead waits on its own event, takes its poses on the thread and
+//! publishes the forces from it, so that a pose reaches its force without crossing threads.
+//! No allocation, lock or log on that path: counters are atomics, and the period's jitter goes
+//! into a fixed histogram.
 
 use crate::cell::SeqCell;
 use crate::render::{HapticSettings, Refused, Renderer};
@@ -29,6 +32,18 @@ const TIMELINE_RESET_NS: u64 = 50_000_000;
 
 /// How many pose sources (transports) may drive one tool.
 pub const SOURCES: usize = 2;
+
+/// Wakes the haptic thread from another thread.
+pub type Waker = Box<dyn Fn() + Send + Sync>;
+
+#[derive(Default)]
+struct WakerCell(std::sync::OnceLock<Waker>);
+
+impl std::fmt::Debug for WakerCell {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.get().is_some() { "WakerCell(set)" } else { "WakerCell(unset)" })
+    }
+}
 
 /// Counters the loop keeps; read by the server's status line and stats.
 #[derive(Debug, Default)]
@@ -60,6 +75,8 @@ pub struct LoopShared {
     /// The loop's clock's origin.
     epoch: Instant,
     thread: std::sync::OnceLock<Thread>,
+    /// Wakes a loop whose [`LoopIo::wait`] does not park (set once, by the server).
+    waker: WakerCell,
     stop: AtomicBool,
     /// The counters.
     pub counters: Counters,
@@ -77,6 +94,7 @@ impl LoopShared {
             forces: (0..tools).map(|_| SeqCell::default()).collect(),
             epoch: Instant::now(),
             thread: std::sync::OnceLock::new(),
+            waker: WakerCell::default(),
             stop: AtomicBool::new(false),
             counters: Counters::default(),
             jitter: Jitter::default(),
@@ -102,12 +120,21 @@ impl LoopShared {
         }
     }
 
-    /// A transport hands over a pose for its tool from source `source` (one writer per source:
-    /// the transport's receiving thread) and wakes the loop. The pose is checked here, on the
-    /// receiving thread, so that every refusal is counted even when a newer pose follows before
-    /// the loop runs: an invalid one ([`check_pose`]) and one whose timestamp goes back are
-    /// counted and dropped. Returns false for a tool id the scene lacks or a source out of range.
+    /// A transport's receiving thread hands over a pose for its tool from source `source` (one
+    /// writer per source) and wakes the loop: [`Self::accept_pose`], then [`Self::wake`].
     pub fn offer_pose(&self, source: usize, pose: &RawToolPose) -> bool {
+        let known = self.accept_pose(source, pose);
+        self.wake();
+        known
+    }
+
+    /// Stores a pose for its tool from source `source` (one writer per source) without waking
+    /// the loop: what the haptic thread itself calls for the poses its [`LoopIo`] receives. The
+    /// pose is checked here, on the receiving thread, so that every refusal is counted even
+    /// when a newer pose follows before the loop runs: an invalid one ([`check_pose`]) and one
+    /// whose timestamp goes back are counted and dropped. Returns false for a tool id the scene
+    /// lacks or a source out of range.
+    pub fn accept_pose(&self, source: usize, pose: &RawToolPose) -> bool {
         let tool = pose.tool_id as usize;
         let (Some(cell), Some(stamp)) = (
             self.poses.get(tool).and_then(|cells| cells.get(source)),
@@ -129,10 +156,23 @@ impl LoopShared {
         }
         stamp.store(pose.timestamp_ns, Ordering::Relaxed);
         cell.write(&pose_words(&pose, now));
+        true
+    }
+
+    /// Wakes the loop: its waker if one is set, and the thread if it parks.
+    pub fn wake(&self) {
+        if let Some(w) = self.waker.0.get() {
+            w();
+        }
         if let Some(t) = self.thread.get() {
             t.unpark();
         }
-        true
+    }
+
+    /// Sets how other threads wake a loop whose [`LoopIo::wait`] does not park; returns false
+    /// when one was set already.
+    pub fn set_waker(&self, waker: Waker) -> bool {
+        self.waker.0.set(waker).is_ok()
     }
 
     /// Tool `tool`'s newest pose from any source, unchecked (the physics thread checks it), and
@@ -156,9 +196,7 @@ impl LoopShared {
     /// Asks the loop to stop.
     pub fn stop(&self) {
         self.stop.store(true, Ordering::Release);
-        if let Some(t) = self.thread.get() {
-            t.unpark();
-        }
+        self.wake();
     }
 
     /// The loop's period jitter so far.
@@ -168,17 +206,24 @@ impl LoopShared {
     }
 }
 
-/// Where the loop's forces go: told (from the haptic thread, so it must not block or allocate)
-/// that the tools flagged in `tools` (bit `i`: tool `i`, the first 64) have new forces in
-/// [`LoopShared::force`].
-pub trait ForceSink: Send {
-    /// New forces are ready.
-    fn forces_ready(&mut self, tools: u64);
+/// How the haptic thread waits and where its forces go. Its methods run on the haptic thread,
+/// so they must not block (beyond `wait`'s timeout), lock or allocate.
+pub trait LoopIo {
+    /// Waits up to `timeout` for new poses, handing those it receives itself to
+    /// [`LoopShared::accept_pose`]. The default parks: [`LoopShared::offer_pose`] unparks.
+    fn wait(&mut self, shared: &LoopShared, timeout: Duration) {
+        let _ = shared;
+        std::thread::park_timeout(timeout);
+    }
+
+    /// The tools flagged in `tools` (bit `i`: tool `i`, the first 64) have new forces in
+    /// [`LoopShared::force`].
+    fn forces_ready(&mut self, shared: &LoopShared, tools: u64);
 }
 
-/// A sink that does nothing (tests, a loop whose forces are read by polling).
-impl ForceSink for () {
-    fn forces_ready(&mut self, _tools: u64) {}
+/// Parks, and sends the forces nowhere (tests, a loop whose forces are read by polling).
+impl LoopIo for () {
+    fn forces_ready(&mut self, _shared: &LoopShared, _tools: u64) {}
 }
 
 /// The haptic thread's state.
@@ -204,9 +249,13 @@ impl HapticLoop {
     }
 
     /// Runs on the calling thread (name it `incise-haptics`) until [`LoopShared::stop`].
-    pub fn run(mut self, sink: &mut dyn ForceSink) {
+    pub fn run(mut self, io: &mut dyn LoopIo) {
         let shared = Arc::clone(&self.shared);
         let _ = shared.thread.set(std::thread::current());
+        // Linux may wake a sleeping thread up to its timer slack late (50 µs by default), which
+        // is jitter the period would carry; 1 µs is what a 1 kHz loop can use.
+        #[cfg(target_os = "linux")]
+        let _ = rustix::thread::set_current_timer_slack(std::num::NonZeroU64::new(1_000));
         let mut next = Instant::now() + self.period;
         let mut last_tick: Option<Instant> = None;
         while !shared.stop.load(Ordering::Acquire) {
@@ -225,11 +274,11 @@ impl HapticLoop {
             }
             let updated = self.update(ticked);
             if updated != 0 {
-                sink.forces_ready(updated);
+                io.forces_ready(&shared, updated);
             }
             let now = Instant::now();
             if now < next {
-                std::thread::park_timeout(next - now);
+                io.wait(&shared, next - now);
             }
         }
     }

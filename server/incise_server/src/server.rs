@@ -3,15 +3,15 @@
 
 use crate::physics::{self, PhysicsStats};
 use anyhow::Context;
-use incise_haptics::{ForceSink, HapticLoop, HapticSettings, LoopShared};
+use incise_haptics::{HapticLoop, HapticSettings, LoopIo, LoopShared};
 use incise_protocol::keys::Keys;
 use incise_protocol::v1;
 use incise_scene::Scene;
 use incise_sim::Simulation;
 use incise_sim::config::Cutting;
-use incise_transport::shm::ShmServer;
+use incise_transport::shm::{ShmPorts, ShmServer};
 use incise_transport::zenoh_link::{Endpoints, ZenohServer};
-use incise_transport::{Faults, PoseHandler, ServerSide};
+use incise_transport::{Faults, PoseHandler, ServerSide, TransportKind};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::{JoinHandle, Thread};
@@ -55,15 +55,37 @@ pub struct Running {
     transports: Arc<ServerSide>,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
-    forces: Thread,
+    zenoh_sender: Option<Thread>,
 }
 
-/// Wakes the force-sending thread.
-struct Wake(Thread);
+/// The haptic thread's I/O: with iceoryx2 it waits on the poses event, takes iceoryx2's poses
+/// and publishes their forces itself; zenoh's forces go to the sending thread it wakes.
+struct HapticIo {
+    shm: Option<ShmPorts>,
+    zenoh_sender: Option<Thread>,
+}
 
-impl ForceSink for Wake {
-    fn forces_ready(&mut self, _tools: u64) {
-        self.0.unpark();
+impl LoopIo for HapticIo {
+    fn wait(&mut self, shared: &LoopShared, timeout: Duration) {
+        let Some(ports) = &self.shm else {
+            std::thread::park_timeout(timeout);
+            return;
+        };
+        ports.wait(timeout);
+        ports.receive(|pose| shared.accept_pose(TransportKind::Iceoryx2.source(), pose));
+    }
+
+    fn forces_ready(&mut self, shared: &LoopShared, tools: u64) {
+        if let Some(ports) = &self.shm {
+            for tool in (0..shared.tools().min(64)).filter(|t| tools & (1 << t) != 0) {
+                if let Some((force, _)) = shared.force(tool) {
+                    ports.send_force(&force);
+                }
+            }
+        }
+        if let Some(t) = &self.zenoh_sender {
+            t.unpark();
+        }
     }
 }
 
@@ -84,7 +106,10 @@ fn key_name(name: &str) -> String {
 pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Running> {
     let config = &scene.config;
     let keys = Keys::new(&key_name(&config.name)).context("the scene's name")?;
-    let sim = Simulation::new(config, &scene.geometry, file)
+    // The physics must leave the haptic thread a core: unless the scene says otherwise, one
+    // thread fewer than the cores, whose idle workers sleep.
+    let exec = config.exec.executor_beside_realtime_thread();
+    let sim = Simulation::with_executor(config, &scene.geometry, file, &exec)
         .with_context(|| format!("cannot build the simulation of {file}"))?;
     let tools: Vec<String> = config.tools.iter().map(|t| t.name.clone()).collect();
     let shared = LoopShared::new(tools.len());
@@ -110,7 +135,7 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     };
     let iceoryx2 = if options.iceoryx2 {
         Some(
-            ShmServer::start(&keys, tools.len(), handler, Arc::clone(&faults))
+            ShmServer::start(&keys, tools.len(), Arc::clone(&faults))
                 .context("cannot serve iceoryx2 (is /dev/shm there? --no-iceoryx2 turns it off)")?,
         )
     } else {
@@ -121,11 +146,12 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     let physics_stats = Arc::new(PhysicsStats::default());
     let dt = config.dt();
     let mut threads = Vec::new();
-    // The force sender: parked until the haptic loop has forces, then sends the new ones.
-    let sender = {
+    // zenoh's force sender: parked until the haptic loop has forces, then sends the new ones
+    // (a zenoh put may allocate, so not on the haptic thread).
+    let zenoh_sender = if transports.zenoh.is_some() {
         let (shared, transports, stop) =
             (Arc::clone(&shared), Arc::clone(&transports), Arc::clone(&stop));
-        std::thread::Builder::new().name("incise-forces".into()).spawn(move || {
+        let sender = std::thread::Builder::new().name("incise-forces".into()).spawn(move || {
             let mut sent = vec![0u64; shared.tools()];
             while !stop.load(Ordering::Acquire) {
                 std::thread::park_timeout(Duration::from_millis(100));
@@ -134,21 +160,59 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
                         && version > *last
                     {
                         *last = version;
-                        transports.send_force(&force);
+                        transports.send_zenoh_force(&force);
                     }
                 }
             }
-        })?
+        })?;
+        let thread = sender.thread().clone();
+        threads.push(sender);
+        Some(thread)
+    } else {
+        None
     };
-    let forces = sender.thread().clone();
-    threads.push(sender);
+    if transports.iceoryx2.is_some() {
+        // Weak: the transports hold the pose handler, which holds `shared`.
+        let transports = Arc::downgrade(&transports);
+        shared.set_waker(Box::new(move || {
+            if let Some(t) = transports.upgrade() {
+                t.ring();
+            }
+        }));
+    }
     threads.push({
-        // The loop stops through `LoopShared::stop`, which `Running::stop` calls.
+        // The loop stops through `LoopShared::stop`, which `Running::stop` calls. It opens
+        // iceoryx2's ports itself (they stay on the thread that opens them) and says whether
+        // it could.
         let haptics = HapticLoop::new(Arc::clone(&shared), options.haptics);
-        let mut wake = Wake(forces.clone());
-        std::thread::Builder::new()
-            .name("incise-haptics".into())
-            .spawn(move || haptics.run(&mut wake))?
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let (transports, sender) = (Arc::clone(&transports), zenoh_sender.clone());
+        let thread =
+            std::thread::Builder::new().name("incise-haptics".into()).spawn(move || {
+                let shm = transports.iceoryx2.as_ref().map(ShmServer::open_ports).transpose();
+                let shm = match shm {
+                    Ok(shm) => shm,
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e));
+                        return;
+                    }
+                };
+                drop(transports);
+                let _ = ready_tx.send(Ok(()));
+                haptics.run(&mut HapticIo { shm, zenoh_sender: sender });
+            })?;
+        match ready_rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                stop.store(true, Ordering::Release);
+                if let Some(t) = &zenoh_sender {
+                    t.unpark();
+                }
+                return Err(anyhow::Error::new(e).context("cannot open the iceoryx2 ports"));
+            }
+            Err(_) => anyhow::bail!("the haptic thread died before it started"),
+        }
+        thread
     });
     threads.push({
         let (shared, transports, stats, stop) = (
@@ -171,7 +235,7 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         transports,
         stop,
         threads,
-        forces,
+        zenoh_sender,
     })
 }
 
@@ -180,7 +244,9 @@ impl Running {
     pub fn stop(self) {
         self.stop.store(true, Ordering::Release);
         self.shared.stop();
-        self.forces.unpark();
+        if let Some(t) = &self.zenoh_sender {
+            t.unpark();
+        }
         for t in self.threads {
             let _ = t.join();
         }

@@ -182,6 +182,10 @@ impl ShmClient {
                 return Some(sample.payload().0);
             }
             let left = until.checked_duration_since(Instant::now())?;
+            // Under a microsecond the socket's timeout would be zero, which means "forever".
+            if left < Duration::from_micros(1) {
+                return None;
+            }
             let _ = self.listener.timed_wait(|_| {}, left);
         }
     }

@@ -11,8 +11,9 @@
 //! ([`Client`]). Whatever arrives is checked before anyone sees it: oversized or malformed bytes,
 //! a pose without position or orientation, a key naming one tool and a message another, a tool
 //! the scene lacks; each kind is counted in [`Faults`] and dropped, and the receiving thread goes
-//! on. The poses a transport accepts go to a [`PoseHandler`] on the transport's thread (the
-//! server hands them to the haptic loop's lock-free cells).
+//! on. zenoh hands the poses it accepts to a [`PoseHandler`] on its own thread; iceoryx2's
+//! [`shm::ShmPorts`] hand theirs to whichever thread holds them (the server's haptic thread).
+//! Either way they go into the haptic loop's lock-free cells.
 
 pub mod client;
 pub mod shm;
@@ -147,13 +148,19 @@ pub struct ServerSide {
 }
 
 impl ServerSide {
-    /// Sends a tool's force on every transport that serves it.
-    pub fn send_force(&self, force: &incise_protocol::raw::RawToolForce) {
+    /// Wakes the thread that takes iceoryx2's poses (so that a pose from zenoh, or a request to
+    /// stop, is seen at once); nothing without iceoryx2.
+    pub fn ring(&self) {
+        if let Some(s) = &self.iceoryx2 {
+            s.ring();
+        }
+    }
+
+    /// Sends a tool's force over zenoh (iceoryx2's forces go from the thread holding its
+    /// [`shm::ShmPorts`]).
+    pub fn send_zenoh_force(&self, force: &incise_protocol::raw::RawToolForce) {
         if let Some(z) = &self.zenoh {
             z.send_force(force);
-        }
-        if let Some(s) = &self.iceoryx2 {
-            s.send_force(force);
         }
     }
 

@@ -4,13 +4,15 @@
 //! wakes at once instead of polling: a client raises `…/tool/poses` (one event for every tool),
 //! the server `…/tool/<id>/force`.
 //!
-//! The server's receiving thread owns its subscribers and its listener; its publishers are the
-//! thread-safe kind, so the thread that sends forces may be any.
+//! The server's ports ([`ShmPorts`]) are bound to the thread that opens them: the server opens
+//! them on its haptic thread, which waits on the poses event, takes the poses, and publishes
+//! each force as it computes it, so a pose reaches its force without crossing a thread. Other
+//! threads wake that thread through [`ShmServer::ring`] (the same event a client raises).
 
 #![allow(unsafe_code, reason = "iceoryx2 payloads are declared shared-memory safe")]
 
+use crate::Faults;
 use crate::zenoh_link::TransportError;
-use crate::{Faults, PoseHandler, TransportKind};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -19,8 +21,7 @@ use iceoryx2::prelude::*;
 use incise_protocol::keys::Keys;
 use incise_protocol::raw::{RawToolForce, RawToolPose};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::JoinHandle;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 /// A pose in shared memory.
@@ -52,9 +53,6 @@ unsafe impl ZeroCopySend for ForceSample {
 /// Samples a subscriber keeps before the oldest is overwritten: the newest pose or force is the
 /// one that matters.
 const BUFFER: usize = 16;
-
-/// How long the receiving thread waits for an event before it checks whether to stop.
-const STOP_CHECK: Duration = Duration::from_millis(20);
 
 fn error(what: &str, e: impl std::fmt::Debug) -> TransportError {
     TransportError(format!("iceoryx2: {what}: {e:?}"))
@@ -101,28 +99,77 @@ pub(crate) fn event<S: iceoryx2::service::Service>(
 
 type Shared = ipc_threadsafe::Service;
 
-/// The server's iceoryx2 side.
+/// Waits up to `timeout` for `listener`'s event, to within the thread's timer slack, and
+/// consumes what it holds. iceoryx2's own timed wait sets a socket timeout, which Linux rounds
+/// up to the next scheduler tick (up to 4 ms late at 250 Hz); instead the listener's socket is
+/// polled with `ppoll`, whose timeout is a high-resolution timer, then drained without blocking.
+pub(crate) fn wait_for_event<S: iceoryx2::service::Service>(
+    listener: &Listener<S>,
+    timeout: Duration,
+) where
+    Listener<S>: FileDescriptorBased,
+{
+    #[cfg(unix)]
+    if let Ok(timeout) = rustix::event::Timespec::try_from(timeout) {
+        // SAFETY: the descriptor is the listener's socket, which `listener` owns and keeps open
+        // for the whole borrow (this call).
+        let fd = unsafe {
+            std::os::fd::BorrowedFd::borrow_raw(listener.file_descriptor().native_handle())
+        };
+        let mut fds = [rustix::event::PollFd::new(&fd, rustix::event::PollFlags::IN)];
+        let _ = rustix::event::poll(&mut fds, Some(&timeout));
+    }
+    #[cfg(not(unix))]
+    if timeout >= Duration::from_micros(1) {
+        let _ = listener.timed_wait(|_| {}, timeout);
+    }
+    let _ = listener.try_wait(|_| {});
+}
+
+/// The server's iceoryx2 side: what any thread may hold. The ports themselves are opened by
+/// [`Self::open_ports`] on the thread that uses them.
 pub struct ShmServer {
-    forces: Vec<(Publisher<Shared, ForceSample, ()>, Notifier<Shared>)>,
+    keys: Keys,
+    tools: usize,
     faults: Arc<Faults>,
-    stop: Arc<AtomicBool>,
-    receiver: Option<JoinHandle<()>>,
+    doorbell: Notifier<Shared>,
     _node: Node<Shared>,
 }
 
 impl ShmServer {
-    /// Serves `keys`' scene with `tools` tools: a thread receives poses into `handler`.
-    pub fn start(
-        keys: &Keys,
-        tools: usize,
-        handler: PoseHandler,
-        faults: Arc<Faults>,
-    ) -> Result<Self, TransportError> {
+    /// Serves `keys`' scene with `tools` tools, counting refusals in `faults`. This opens the
+    /// poses event (so a missing `/dev/shm` is reported here); [`Self::open_ports`] the rest.
+    pub fn start(keys: &Keys, tools: usize, faults: Arc<Faults>) -> Result<Self, TransportError> {
         let node = node::<Shared>()?;
-        let mut forces = Vec::with_capacity(tools);
-        for t in 0..tools as u32 {
-            let key = keys.tool_force(t);
-            let publisher = records::<Shared, ForceSample>(&node, &key)?
+        let doorbell = event(&node, &keys.poses_ready())?
+            .notifier_builder()
+            .create()
+            .map_err(|e| error("cannot raise the poses event", e))?;
+        Ok(Self { keys: keys.clone(), tools, faults, doorbell, _node: node })
+    }
+
+    /// Wakes the thread that holds the ports (from a pose that came another way, or to stop).
+    pub fn ring(&self) {
+        let _ = self.doorbell.notify();
+    }
+
+    /// Opens the server's ports, bound to the calling thread: a subscriber to every tool's
+    /// poses, a listener on the poses event, and every tool's force publisher and notifier.
+    pub fn open_ports(&self) -> Result<ShmPorts, TransportError> {
+        let node = node::<ipc::Service>()?;
+        let mut poses = Vec::with_capacity(self.tools);
+        let mut forces = Vec::with_capacity(self.tools);
+        for t in 0..self.tools as u32 {
+            let key = self.keys.tool_pose(t);
+            poses.push(
+                records::<ipc::Service, PoseSample>(&node, &key)?
+                    .subscriber_builder()
+                    .buffer_size(BUFFER)
+                    .create()
+                    .map_err(|e| error(&format!("cannot subscribe to {key}"), e))?,
+            );
+            let key = self.keys.tool_force(t);
+            let publisher = records::<ipc::Service, ForceSample>(&node, &key)?
                 .publisher_builder()
                 .create()
                 .map_err(|e| error(&format!("cannot publish on {key}"), e))?;
@@ -132,22 +179,45 @@ impl ShmServer {
                 .map_err(|e| error(&format!("cannot notify on {key}"), e))?;
             forces.push((publisher, notifier));
         }
-        let stop = Arc::new(AtomicBool::new(false));
-        // The receiving thread opens its own ports, and reports whether it could.
-        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-        let receiver = {
-            let (keys, stop, faults) = (keys.clone(), Arc::clone(&stop), Arc::clone(&faults));
-            std::thread::Builder::new()
-                .name("incise-shm-rx".into())
-                .spawn(move || receive(&keys, tools, &handler, &faults, &stop, &ready_tx))
-                .map_err(|e| error("cannot start the receiving thread", e))?
-        };
-        match ready_rx.recv() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(e),
-            Err(_) => return Err(TransportError("iceoryx2: the receiving thread died".into())),
+        let listener = event(&node, &self.keys.poses_ready())?
+            .listener_builder()
+            .create()
+            .map_err(|e| error("cannot listen for poses", e))?;
+        Ok(ShmPorts { poses, listener, forces, faults: Arc::clone(&self.faults), _node: node })
+    }
+}
+
+/// The server's iceoryx2 ports, bound to the thread that opened them ([`ShmServer::open_ports`]).
+/// Receiving and publishing take no lock: the subscriber and publisher queues are lock-free in
+/// shared memory, and an event is one datagram on a non-blocking socket.
+pub struct ShmPorts {
+    poses: Vec<Subscriber<ipc::Service, PoseSample, ()>>,
+    listener: Listener<ipc::Service>,
+    forces: Vec<(Publisher<ipc::Service, ForceSample, ()>, Notifier<ipc::Service>)>,
+    faults: Arc<Faults>,
+    _node: Node<ipc::Service>,
+}
+
+impl ShmPorts {
+    /// Waits up to `timeout` for the poses event (a client's, or [`ShmServer::ring`]).
+    pub fn wait(&self, timeout: Duration) {
+        wait_for_event(&self.listener, timeout);
+    }
+
+    /// Hands every pose received since the last call to `accept` (which returns false for a
+    /// tool the scene lacks); a pose on another tool's service, and an unknown tool, are counted
+    /// in the faults and dropped.
+    pub fn receive(&self, mut accept: impl FnMut(&RawToolPose) -> bool) {
+        for (tool, subscriber) in self.poses.iter().enumerate() {
+            while let Ok(Some(sample)) = subscriber.receive() {
+                let pose = sample.payload().0;
+                if pose.tool_id as usize != tool {
+                    self.faults.mismatched.fetch_add(1, Ordering::Relaxed);
+                } else if !accept(&pose) {
+                    self.faults.unknown_tool.fetch_add(1, Ordering::Relaxed);
+                }
+            }
         }
-        Ok(Self { forces, faults, stop, receiver: Some(receiver), _node: node })
     }
 
     /// Publishes a tool's force and wakes its client.
@@ -156,69 +226,6 @@ impl ShmServer {
         let sent = publisher.send_copy(ForceSample(*force)).is_ok() && notifier.notify().is_ok();
         if !sent {
             self.faults.send_failed.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-}
-
-impl Drop for ShmServer {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Release);
-        if let Some(r) = self.receiver.take() {
-            let _ = r.join();
-        }
-    }
-}
-
-/// The receiving thread: wakes on the poses event (or every [`STOP_CHECK`]) and drains every
-/// tool's subscriber.
-fn receive(
-    keys: &Keys,
-    tools: usize,
-    handler: &PoseHandler,
-    faults: &Faults,
-    stop: &AtomicBool,
-    ready: &std::sync::mpsc::Sender<Result<(), TransportError>>,
-) {
-    let ports = (|| {
-        let node = node::<ipc::Service>()?;
-        let subscribers = (0..tools as u32)
-            .map(|t| {
-                let key = keys.tool_pose(t);
-                records::<ipc::Service, PoseSample>(&node, &key)?
-                    .subscriber_builder()
-                    .buffer_size(BUFFER)
-                    .create()
-                    .map_err(|e| error(&format!("cannot subscribe to {key}"), e))
-            })
-            .collect::<Result<Vec<Subscriber<ipc::Service, PoseSample, ()>>, _>>()?;
-        let listener: Listener<ipc::Service> = event(&node, &keys.poses_ready())?
-            .listener_builder()
-            .create()
-            .map_err(|e| error("cannot listen for poses", e))?;
-        Ok((node, subscribers, listener))
-    })();
-    let (_node, subscribers, listener) = match ports {
-        Ok(p) => {
-            let _ = ready.send(Ok(()));
-            p
-        }
-        Err(e) => {
-            let _ = ready.send(Err(e));
-            return;
-        }
-    };
-    while !stop.load(Ordering::Acquire) {
-        // Events only wake the thread; the subscribers hold the data.
-        let _ = listener.timed_wait(|_| {}, STOP_CHECK);
-        for (tool, subscriber) in subscribers.iter().enumerate() {
-            while let Ok(Some(sample)) = subscriber.receive() {
-                let pose = sample.payload().0;
-                if pose.tool_id as usize != tool {
-                    faults.mismatched.fetch_add(1, Ordering::Relaxed);
-                } else if !handler(TransportKind::Iceoryx2, &pose) {
-                    faults.unknown_tool.fetch_add(1, Ordering::Relaxed);
-                }
-            }
         }
     }
 }

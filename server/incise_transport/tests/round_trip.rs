@@ -6,7 +6,7 @@
 use incise_protocol::keys::Keys;
 use incise_protocol::raw::{RawToolForce, RawToolPose};
 use incise_protocol::v1;
-use incise_transport::shm::ShmServer;
+use incise_transport::shm::{ShmPorts, ShmServer};
 use incise_transport::zenoh_link::{Endpoints, ZenohServer};
 use incise_transport::{Client, Faults, PoseHandler, TransportKind};
 use std::sync::atomic::Ordering;
@@ -122,17 +122,38 @@ fn iceoryx2_carries_poses_and_forces_and_counts_unknown_tools() {
     let keys = Keys::new(&format!("shm_rt_{}", std::process::id())).unwrap();
     let (handler, seen) = recorder();
     let faults = Arc::new(Faults::default());
-    // Three tools' services, but the handler knows only tools 0 and 1.
-    let server = ShmServer::start(&keys, 3, handler, Arc::clone(&faults)).unwrap();
+    // Three tools' services, but the handler knows only tools 0 and 1. The ports live on this
+    // thread, as they do on the server's haptic thread.
+    let server = ShmServer::start(&keys, 3, Arc::clone(&faults)).unwrap();
+    let ports = server.open_ports().unwrap();
+    let take = |ports: &ShmPorts| {
+        ports.wait(Duration::from_millis(2));
+        ports.receive(|p| handler(TransportKind::Iceoryx2, p));
+    };
     let client = Client::connect(TransportKind::Iceoryx2, &keys, 0, "").unwrap();
     client.send_pose(&pose(0, 1)).unwrap();
-    wait_for("a pose over iceoryx2", || !seen.lock().unwrap().is_empty());
+    wait_for("a pose over iceoryx2", || {
+        take(&ports);
+        !seen.lock().unwrap().is_empty()
+    });
     let (kind, got) = seen.lock().unwrap()[0];
     assert_eq!((kind, got), (TransportKind::Iceoryx2, pose(0, 1)));
-    let f = exchange(&client, &|f| server.send_force(f), &got);
+    let f = exchange(&client, &|f| ports.send_force(f), &got);
     assert_eq!(f, answer(&got));
     let stranger = Client::connect(TransportKind::Iceoryx2, &keys, 2, "").unwrap();
     stranger.send_pose(&pose(2, 1)).unwrap();
-    wait_for("the unknown tool to be counted", || faults.unknown_tool.load(Ordering::Relaxed) == 1);
-    drop(server);
+    wait_for("the unknown tool to be counted", || {
+        take(&ports);
+        faults.unknown_tool.load(Ordering::Relaxed) == 1
+    });
+    // Another thread's ring wakes the ports' holder well before its timeout.
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            std::thread::sleep(Duration::from_millis(20));
+            server.ring();
+        });
+        let started = Instant::now();
+        ports.wait(Duration::from_secs(20));
+        assert!(started.elapsed() < Duration::from_secs(10), "the ring did not wake the wait");
+    });
 }

@@ -410,6 +410,19 @@ impl ExecSpec {
     pub fn executor(&self) -> Executor {
         Executor::configured(self.threads, self.idle)
     }
+
+    /// The executor for a process that also runs a real-time thread (the server's 1 kHz
+    /// haptic loop): what is not given takes [`Executor::beside_realtime_thread`]'s settings
+    /// (one thread fewer than the cores, idle workers sleep), so that thread always finds a
+    /// core; the environment variables still override.
+    #[must_use]
+    pub fn executor_beside_realtime_thread(&self) -> Executor {
+        let realtime = Executor::beside_realtime_thread();
+        Executor::configured(
+            Some(self.threads.unwrap_or(realtime.threads())),
+            Some(self.idle.unwrap_or(realtime.idle())),
+        )
+    }
 }
 
 impl Integrator {

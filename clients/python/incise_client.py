@@ -11,13 +11,15 @@ import argparse
 import json
 import pathlib
 import queue
+import random
 import sys
 import time
 
 HERE = pathlib.Path(__file__).resolve().parent
-if not (HERE / "generated" / "incise" / "v1" / "tool_pb2.py").exists():
-    import build_proto
+sys.path.insert(0, str(HERE))
+import build_proto  # noqa: E402
 
+if build_proto.stale():
     build_proto.build()
 sys.path.insert(0, str(HERE / "generated"))
 
@@ -37,6 +39,8 @@ class InciseClient:
         conf.insert_json5("scouting/multicast/enabled", "false")
         self.session = zenoh.open(conf)
         self.tool = tool
+        # This connection's session: the server lets one session drive a tool at a time.
+        self.client = random.randint(1, 2**32 - 1)
         self.root = f"incise/v1/{scene}"
         self.forces: "queue.Queue[tool_pb2.ToolForce]" = queue.Queue()
         self.publisher = self.session.declare_publisher(f"{self.root}/tool/{tool}/pose")
@@ -67,6 +71,7 @@ class InciseClient:
                 w=orientation[0], x=orientation[1], y=orientation[2], z=orientation[3]
             ),
             gripper_angle=gripper,
+            client=self.client,
         )
         self.publisher.put(pose.SerializeToString())
 

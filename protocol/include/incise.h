@@ -38,7 +38,7 @@ typedef struct IncisePose {
     uint32_t tool_id;
     uint32_t buttons;             /* one bit per button */
     uint32_t has;
-    uint32_t reserved;            /* zero */
+    uint32_t client;              /* the session; incise_send_pose fills in 0 */
 } IncisePose;
 
 /* The force answering a pose (incise.v1.ToolForce). */
@@ -74,7 +74,7 @@ const char *incise_last_error(void);
 _Static_assert(sizeof(IncisePose) == 144, "IncisePose is 144 bytes");
 _Static_assert(offsetof(IncisePose, position) == 16, "IncisePose.position");
 _Static_assert(offsetof(IncisePose, gripper_angle) == 120, "IncisePose.gripper_angle");
-_Static_assert(offsetof(IncisePose, reserved) == 140, "IncisePose.reserved");
+_Static_assert(offsetof(IncisePose, client) == 140, "IncisePose.client");
 _Static_assert(sizeof(InciseForce) == 80, "InciseForce is 80 bytes");
 _Static_assert(offsetof(InciseForce, gripper_force) == 64, "InciseForce.gripper_force");
 _Static_assert(offsetof(InciseForce, flags) == 76, "InciseForce.flags");

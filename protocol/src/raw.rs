@@ -31,8 +31,9 @@ pub struct RawToolPose {
     pub buttons: u32,
     /// Which optional fields are given ([`HAS_LINEAR_VELOCITY`], [`HAS_ANGULAR_VELOCITY`]).
     pub has: u32,
-    /// Zero.
-    pub reserved: u32,
+    /// The sending client's session: a random non-zero number its library picks when it
+    /// connects (0: not given). See [`v1::ToolPose::client`].
+    pub client: u32,
 }
 
 /// `RawToolPose::has`: the linear velocity is given.
@@ -101,6 +102,7 @@ impl From<&RawToolPose> for v1::ToolPose {
             angular_velocity: (r.has & HAS_ANGULAR_VELOCITY != 0).then(|| vec3(r.angular_velocity)),
             buttons: r.buttons,
             gripper_angle: r.gripper_angle,
+            client: r.client,
         }
     }
 }
@@ -132,7 +134,7 @@ impl TryFrom<&v1::ToolPose> for RawToolPose {
             tool_id: p.tool_id,
             buttons: p.buttons,
             has,
-            reserved: 0,
+            client: p.client,
         })
     }
 }
@@ -187,7 +189,7 @@ mod tests {
             offset_of!(RawToolPose, tool_id),
             offset_of!(RawToolPose, buttons),
             offset_of!(RawToolPose, has),
-            offset_of!(RawToolPose, reserved),
+            offset_of!(RawToolPose, client),
         ];
         assert_eq!(pose, [0, 8, 16, 40, 72, 96, 120, 128, 132, 136, 140]);
         assert_eq!((size_of::<RawToolForce>(), align_of::<RawToolForce>()), (80, 8));
@@ -216,14 +218,14 @@ mod tests {
             sequence in any::<u64>(), timestamp_ns in any::<u64>(), position in triple(),
             orientation in [finite(), finite(), finite(), finite()], linear in triple(),
             angular in triple(), gripper_angle in finite(), tool_id in any::<u32>(),
-            buttons in any::<u32>(), has in 0u32..4,
+            buttons in any::<u32>(), has in 0u32..4, client in any::<u32>(),
         ) -> RawToolPose {
             // Absent velocities are zero in the record.
             let linear_velocity = if has & HAS_LINEAR_VELOCITY != 0 { linear } else { [0.0; 3] };
             let angular_velocity = if has & HAS_ANGULAR_VELOCITY != 0 { angular } else { [0.0; 3] };
             RawToolPose {
                 sequence, timestamp_ns, position, orientation, linear_velocity, angular_velocity,
-                gripper_angle, tool_id, buttons, has, reserved: 0,
+                gripper_angle, tool_id, buttons, has, client,
             }
         }
     }
@@ -291,7 +293,7 @@ mod tests {
             tool_id: u32::MAX,
             buttons: u32::MAX,
             has: 3,
-            reserved: 0,
+            client: u32::MAX,
         };
         let n = v1::ToolPose::from(&big).encoded_len();
         assert!(n < 200, "{n} bytes");

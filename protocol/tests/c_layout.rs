@@ -14,7 +14,7 @@ int main(void) {
     F(IncisePose, sequence); F(IncisePose, timestamp_ns); F(IncisePose, position);
     F(IncisePose, orientation); F(IncisePose, linear_velocity); F(IncisePose, angular_velocity);
     F(IncisePose, gripper_angle); F(IncisePose, tool_id); F(IncisePose, buttons);
-    F(IncisePose, has); F(IncisePose, reserved);
+    F(IncisePose, has); F(IncisePose, client);
     printf("InciseForce %zu\n", sizeof(InciseForce));
     F(InciseForce, pose_sequence); F(InciseForce, timestamp_ns); F(InciseForce, force);
     F(InciseForce, torque); F(InciseForce, gripper_force); F(InciseForce, tool_id);
@@ -55,7 +55,7 @@ fn the_c_header_declares_the_rust_layout() {
         ("IncisePose.tool_id", offset_of!(RawToolPose, tool_id)),
         ("IncisePose.buttons", offset_of!(RawToolPose, buttons)),
         ("IncisePose.has", offset_of!(RawToolPose, has)),
-        ("IncisePose.reserved", offset_of!(RawToolPose, reserved)),
+        ("IncisePose.client", offset_of!(RawToolPose, client)),
         ("InciseForce", size_of::<RawToolForce>()),
         ("InciseForce.pose_sequence", offset_of!(RawToolForce, pose_sequence)),
         ("InciseForce.timestamp_ns", offset_of!(RawToolForce, timestamp_ns)),

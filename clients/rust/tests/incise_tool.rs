@@ -126,3 +126,51 @@ fn a_client_killed_mid_contact_leaves_a_force_that_fades_to_zero() {
     );
     running.stop();
 }
+
+/// Two `incise-tool` processes claim the scalpel: the first drives it; the second's poses (over
+/// the other transport) are refused and counted while the first's keep coming, and the first
+/// stays answered throughout. Once the first has finished and fallen silent, the tool passes to
+/// the next client that asks.
+#[test]
+fn a_second_client_cannot_take_a_tool_that_another_drives() {
+    use std::sync::atomic::Ordering;
+    let (_turn, running, endpoint) = demo_server();
+    let tool = |transport: &str, duration: &str| {
+        Command::new(env!("CARGO_BIN_EXE_incise-tool"))
+            .args(["--transport", transport, "--connect", &endpoint, "--tool", "0"])
+            .args(["--script", "press", "--depth", "0.002", "--duration", duration])
+            .args(["--print-every", "0", "--json"])
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let report = |child: std::process::Child| {
+        let out = child.wait_with_output().unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{stdout}");
+        let j: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+        j
+    };
+    let counters = &running.shared.counters;
+    let first = tool("iceoryx2", "4");
+    // The second starts once the first's poses are arriving.
+    let until = std::time::Instant::now() + std::time::Duration::from_mins(1);
+    while counters.poses.load(Ordering::Relaxed) < 200 {
+        assert!(std::time::Instant::now() < until, "the first client's poses never came");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let second = report(tool("zenoh", "1"));
+    let first = report(first);
+    let claimed = counters.claimed.load(Ordering::Relaxed);
+    println!("first: {first}\nsecond: {second}\nrefused as claimed: {claimed}");
+    assert_eq!(second["samples"], 0, "the second client's poses were answered: {second}");
+    assert!(claimed > 500, "{claimed} of the second client's ~1000 poses refused");
+    let (sent, answered) = (first["sent"].as_u64().unwrap(), first["samples"].as_u64().unwrap());
+    assert!(answered * 10 > sent * 9, "the first client lost its answers: {first}");
+    // The first has finished: the next client drives the tool.
+    let third = report(tool("zenoh", "1"));
+    println!("third: {third}");
+    assert!(third["samples"].as_u64().unwrap() > 100, "{third}");
+    assert_eq!(counters.handovers.load(Ordering::Relaxed), 1);
+    running.stop();
+}

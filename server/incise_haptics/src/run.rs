@@ -60,6 +60,10 @@ pub struct Counters {
     pub stale: AtomicU64,
     /// Forces clamped or rate-limited.
     pub clamped: AtomicU64,
+    /// Poses refused: another session drives the tool.
+    pub claimed: AtomicU64,
+    /// Times a tool passed to another session after its driver fell silent.
+    pub handovers: AtomicU64,
 }
 
 /// What the haptic thread shares with the physics thread and the transports.
@@ -71,6 +75,8 @@ pub struct LoopShared {
     /// Per tool, per source: the newest accepted pose's timestamp (written by the source's
     /// thread only).
     stamps: Vec<[AtomicU64; SOURCES]>,
+    /// Per tool: the session driving it ([`driver`]; 0: none yet) and its last pose's arrival.
+    drivers: Vec<(AtomicU64, AtomicU64)>,
     forces: Vec<SeqCell<FORCE_WORDS>>,
     /// The loop's clock's origin.
     epoch: Instant,
@@ -91,6 +97,7 @@ impl LoopShared {
             snapshots: (0..tools).map(|_| SnapshotCell::default()).collect(),
             poses: (0..tools).map(|_| Default::default()).collect(),
             stamps: (0..tools).map(|_| Default::default()).collect(),
+            drivers: (0..tools).map(|_| Default::default()).collect(),
             forces: (0..tools).map(|_| SeqCell::default()).collect(),
             epoch: Instant::now(),
             thread: std::sync::OnceLock::new(),
@@ -147,6 +154,10 @@ impl LoopShared {
             return true;
         };
         let now = self.now_ns();
+        if !self.claim(tool, driver(source, pose.client), now) {
+            self.counters.claimed.fetch_add(1, Ordering::Relaxed);
+            return true;
+        }
         // A live stream's timestamps must go forward; one silent for the whole fade may start
         // again from a new clock (a driver restarted).
         let live = cell.read().is_some_and(|(w, _)| now.saturating_sub(w[18]) < TIMELINE_RESET_NS);
@@ -156,6 +167,29 @@ impl LoopShared {
         }
         stamp.store(pose.timestamp_ns, Ordering::Relaxed);
         cell.write(&pose_words(&pose, now));
+        true
+    }
+
+    /// Whether session `id` may drive tool `tool` at `now`: it does already, or nobody does,
+    /// or its driver has been silent for [`TIMELINE_RESET_NS`] (the stale fade's length), in
+    /// which case the tool passes to `id`. Two sources may race for a free tool; the
+    /// compare-exchange lets exactly one take it.
+    fn claim(&self, tool: usize, id: u64, now: u64) -> bool {
+        let (owner, seen) = &self.drivers[tool];
+        let current = owner.load(Ordering::Acquire);
+        if current != id {
+            let silent = now.saturating_sub(seen.load(Ordering::Acquire)) >= TIMELINE_RESET_NS;
+            if current != 0 && !silent {
+                return false;
+            }
+            if owner.compare_exchange(current, id, Ordering::AcqRel, Ordering::Acquire).is_err() {
+                return false;
+            }
+            if current != 0 {
+                self.counters.handovers.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        seen.fetch_max(now, Ordering::AcqRel);
         true
     }
 
@@ -394,6 +428,12 @@ impl Jitter {
     }
 }
 
+/// Who drives a tool: the pose's session and the transport it came over (never 0), so that
+/// two clients without a session id on different transports are still told apart.
+fn driver(source: usize, client: u32) -> u64 {
+    u64::from(client) << 8 | (source as u64 + 1)
+}
+
 fn pose_words(p: &RawToolPose, arrived: u64) -> [u64; POSE_WORDS] {
     let mut w = [0u64; POSE_WORDS];
     w[0] = p.sequence;
@@ -409,7 +449,7 @@ fn pose_words(p: &RawToolPose, arrived: u64) -> [u64; POSE_WORDS] {
         *slot = v.to_bits();
     }
     w[16] = u64::from(p.tool_id) | u64::from(p.buttons) << 32;
-    w[17] = u64::from(p.has) | u64::from(p.reserved) << 32;
+    w[17] = u64::from(p.has) | u64::from(p.client) << 32;
     w[18] = arrived;
     w
 }
@@ -427,7 +467,7 @@ fn pose_from_words(w: &[u64; POSE_WORDS]) -> (RawToolPose, u64) {
         tool_id: w[16] as u32,
         buttons: (w[16] >> 32) as u32,
         has: w[17] as u32,
-        reserved: (w[17] >> 32) as u32,
+        client: (w[17] >> 32) as u32,
     };
     (pose, w[18])
 }
@@ -483,6 +523,36 @@ mod tests {
             flags: 5,
         };
         assert_eq!(force_from_words(&force_words(&f)), f);
+    }
+
+    /// One session drives a tool at a time: a second session's poses are refused and counted
+    /// while the first's keep coming, on either transport; once the first has been silent for
+    /// the fade, the tool passes to the second, whose poses are then the ones stored.
+    #[test]
+    fn a_second_session_cannot_take_a_driven_tool_until_its_driver_falls_silent() {
+        let shared = LoopShared::new(1);
+        let pose = |client, seq: u64| RawToolPose {
+            sequence: seq,
+            timestamp_ns: seq,
+            client,
+            ..RawToolPose::at(0, [0.0, 0.0, seq as f64 * 1e-3])
+        };
+        let newest = |shared: &LoopShared| shared.newest_pose(0).unwrap().0.sequence;
+        assert!(shared.accept_pose(0, &pose(11, 1)));
+        assert!(shared.accept_pose(0, &pose(22, 2)), "a known tool, though refused");
+        assert!(shared.accept_pose(1, &pose(22, 3)), "nor over the other transport");
+        assert_eq!(newest(&shared), 1);
+        assert_eq!(shared.counters.claimed.load(Ordering::Relaxed), 2);
+        assert!(shared.accept_pose(0, &pose(11, 4)));
+        assert_eq!(newest(&shared), 4, "the driver goes on");
+        // Session 11 falls silent for longer than the fade: 22 takes the tool.
+        std::thread::sleep(Duration::from_nanos(TIMELINE_RESET_NS) + Duration::from_millis(10));
+        assert!(shared.accept_pose(1, &pose(22, 5)));
+        assert_eq!(newest(&shared), 5);
+        assert_eq!(shared.counters.handovers.load(Ordering::Relaxed), 1);
+        assert!(shared.accept_pose(0, &pose(11, 6)));
+        assert_eq!(newest(&shared), 5, "the old driver is now the second session");
+        assert_eq!(shared.counters.claimed.load(Ordering::Relaxed), 3);
     }
 
     /// The thread answers each pose with a force that names it, renders the snapshot, fades

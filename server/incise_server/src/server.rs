@@ -266,12 +266,25 @@ impl Running {
             .take(8)
             .map(|(i, name)| format!("{name} {:.2} N", get(&p.tool_force_un[i]) as f64 * 1e-6))
             .collect();
-        let refused: u64 = self.faults.snapshot().iter().map(|(_, n)| n).sum::<u64>()
-            + get(&c.invalid)
-            + get(&c.backwards);
+        let kinds: Vec<(&str, u64)> = [
+            ("invalid", get(&c.invalid)),
+            ("backwards", get(&c.backwards)),
+            ("claimed", get(&c.claimed)),
+        ]
+        .into_iter()
+        .chain(self.faults.snapshot())
+        .filter(|(_, n)| *n > 0)
+        .collect();
+        let refused: u64 = kinds.iter().map(|(_, n)| n).sum();
+        let refused = if kinds.is_empty() {
+            "0 refused".to_owned()
+        } else {
+            let each: Vec<String> = kinds.iter().map(|(k, n)| format!("{n} {k}")).collect();
+            format!("{refused} refused: {}", each.join(", "))
+        };
         let jitter = self.shared.jitter().quantile_us(0.99).unwrap_or(0.0);
         format!(
-            "frame {} ({} late, {} µs last) | haptics {} updates, jitter p99 {jitter:.0} µs | poses {} ({refused} refused) | forces: {} | removed {}",
+            "frame {} ({} late, {} µs last) | haptics {} updates, jitter p99 {jitter:.0} µs | poses {} ({refused}) | forces: {} | removed {}",
             get(&p.frames),
             get(&p.late),
             get(&p.last_frame_us),

@@ -41,11 +41,25 @@ impl Client {
         })
     }
 
-    /// Sends a pose.
+    /// Sends a pose, as this connection's session unless the pose names one
+    /// ([`RawToolPose::client`]).
     pub fn send_pose(&self, pose: &RawToolPose) -> Result<(), TransportError> {
         match self {
-            Self::Zenoh(c) => c.send_bytes(&v1::ToolPose::from(pose).encode_to_vec()),
+            Self::Zenoh(c) => {
+                let pose = stamped(pose, c.session);
+                c.send_bytes(&v1::ToolPose::from(&pose).encode_to_vec())
+            }
             Self::Iceoryx2(c) => c.send_pose(pose),
+        }
+    }
+
+    /// This connection's session id: what its poses carry in [`RawToolPose::client`] (the
+    /// server lets one session drive a tool at a time).
+    #[must_use]
+    pub fn session(&self) -> u32 {
+        match self {
+            Self::Zenoh(c) => c.session,
+            Self::Iceoryx2(c) => c.session,
         }
     }
 
@@ -59,13 +73,27 @@ impl Client {
     }
 }
 
+/// A random non-zero session id for a new connection.
+fn new_session() -> u32 {
+    use std::hash::BuildHasher;
+    let seed = (std::process::id(), std::time::SystemTime::now(), Instant::now());
+    let id = std::collections::hash_map::RandomState::new().hash_one(seed) as u32;
+    id.max(1)
+}
+
+/// `pose` as session `session`'s, unless it names its own.
+fn stamped(pose: &RawToolPose, session: u32) -> RawToolPose {
+    RawToolPose { client: if pose.client == 0 { session } else { pose.client }, ..*pose }
+}
+
 /// A zenoh client.
 pub struct ZenohClient {
+    session: u32,
     pose: zenoh::pubsub::Publisher<'static>,
     forces: mpsc::Receiver<RawToolForce>,
     _forces: zenoh::pubsub::Subscriber<()>,
     info: String,
-    session: zenoh::Session,
+    zenoh: zenoh::Session,
 }
 
 impl ZenohClient {
@@ -91,7 +119,14 @@ impl ZenohClient {
             })
             .wait()
             .map_err(|e| TransportError(format!("zenoh: cannot subscribe to {force_key}: {e}")))?;
-        Ok(Self { pose, forces, _forces: subscriber, info: keys.info(), session })
+        Ok(Self {
+            session: new_session(),
+            pose,
+            forces,
+            _forces: subscriber,
+            info: keys.info(),
+            zenoh: session,
+        })
     }
 
     /// Publishes `bytes` on the tool's pose key, whatever they are (a test of the server's
@@ -106,7 +141,7 @@ impl ZenohClient {
     /// Asks the server for its scene's description.
     pub fn scene_info(&self, timeout: Duration) -> Result<v1::SceneInfo, TransportError> {
         let replies = self
-            .session
+            .zenoh
             .get(self.info.clone())
             .timeout(timeout)
             .wait()
@@ -127,6 +162,7 @@ type Shared = ipc_threadsafe::Service;
 
 /// An iceoryx2 client.
 pub struct ShmClient {
+    session: u32,
     pose: ShmPublisher<Shared, PoseSample, ()>,
     ready: Notifier<Shared>,
     forces: Subscriber<Shared, ForceSample, ()>,
@@ -159,13 +195,13 @@ impl ShmClient {
             .listener_builder()
             .create()
             .map_err(|e| err(format!("cannot listen on {force_key}"))(&e))?;
-        Ok(Self { pose, ready, forces, listener, _node: node })
+        Ok(Self { session: new_session(), pose, ready, forces, listener, _node: node })
     }
 
     /// Publishes a pose and wakes the server.
     pub fn send_pose(&self, pose: &RawToolPose) -> Result<(), TransportError> {
         self.pose
-            .send_copy(PoseSample(*pose))
+            .send_copy(PoseSample(stamped(pose, self.session)))
             .map_err(|e| TransportError(format!("iceoryx2: cannot send a pose: {e:?}")))?;
         self.ready
             .notify()

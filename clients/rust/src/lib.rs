@@ -17,13 +17,18 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
+//! In async code, [`AsyncClient`] is the same connection with forces awaited (on any executor:
+//! it needs no runtime of its own).
+//!
 //! [`drive`] sends a trajectory at a fixed rate and times every pose's round trip to the force
 //! that answers it; [`script`] holds the trajectories `incise-tool` offers (press, press and
 //! cut, circle, a CSV file of poses).
 
+pub mod asynchronous;
 pub mod drive;
 pub mod script;
 
+pub use asynchronous::AsyncClient;
 pub use incise_protocol::keys::Keys;
 pub use incise_protocol::{raw, v1};
 pub use incise_transport::{Client, TransportKind};

@@ -174,3 +174,42 @@ fn a_second_client_cannot_take_a_tool_that_another_drives() {
     assert_eq!(counters.handovers.load(Ordering::Relaxed), 1);
     running.stop();
 }
+
+/// The async client, on a plain executor (no runtime of its own): over each transport, every
+/// pose's answer is awaited and names it; above the organ the force is zero.
+#[test]
+fn the_async_client_awaits_the_force_answering_each_pose() {
+    use incise_client::raw::RawToolPose;
+    use incise_client::{AsyncClient, Keys, TransportKind};
+    let (_turn, running, endpoint) = demo_server();
+    let keys = Keys::new("demo_organ").unwrap();
+    for kind in [TransportKind::Iceoryx2, TransportKind::Zenoh] {
+        let client = AsyncClient::connect(kind, &keys, 1, &endpoint).unwrap();
+        assert_ne!(client.client().session(), 0);
+        let answered = futures::executor::block_on(async {
+            let mut answered = 0;
+            for sequence in 1..=50u64 {
+                let pose = RawToolPose {
+                    sequence,
+                    timestamp_ns: sequence,
+                    ..RawToolPose::at(1, [0.04, 0.03, 0.2])
+                };
+                // A subscription may take a moment to reach the other side: resend until the
+                // answer comes (the haptic loop's ticks keep forces coming meanwhile).
+                for _ in 0..2000 {
+                    client.send_pose(&pose).unwrap();
+                    let force = client.recv_force().await.expect("the connection is open");
+                    if force.pose_sequence == sequence {
+                        assert_eq!(force.force, [0.0; 3], "20 cm above the organ: {force:?}");
+                        answered += 1;
+                        break;
+                    }
+                }
+            }
+            answered
+        });
+        println!("{}: {answered} of 50 poses answered", kind.name());
+        assert_eq!(answered, 50, "over {}", kind.name());
+    }
+    running.stop();
+}

@@ -13,7 +13,6 @@ use incise_protocol::keys::Keys;
 use incise_protocol::raw::{RawToolForce, RawToolPose};
 use incise_protocol::v1;
 use prost::Message;
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use zenoh::Wait;
 
@@ -90,7 +89,7 @@ fn stamped(pose: &RawToolPose, session: u32) -> RawToolPose {
 pub struct ZenohClient {
     session: u32,
     pose: zenoh::pubsub::Publisher<'static>,
-    forces: mpsc::Receiver<RawToolForce>,
+    forces: flume::Receiver<RawToolForce>,
     _forces: zenoh::pubsub::Subscriber<()>,
     info: String,
     zenoh: zenoh::Session,
@@ -108,7 +107,7 @@ impl ZenohClient {
             .express(true)
             .wait()
             .map_err(|e| TransportError(format!("zenoh: cannot publish on {key}: {e}")))?;
-        let (tx, forces) = mpsc::channel();
+        let (tx, forces) = flume::unbounded();
         let force_key = keys.tool_force(tool);
         let subscriber = session
             .declare_subscriber(force_key.clone())

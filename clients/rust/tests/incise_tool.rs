@@ -200,7 +200,7 @@ fn the_async_client_awaits_the_force_answering_each_pose() {
                     client.send_pose(&pose).unwrap();
                     let force = client.recv_force().await.expect("the connection is open");
                     if force.pose_sequence == sequence {
-                        assert_eq!(force.force, [0.0; 3], "20 cm above the organ: {force:?}");
+                        assert!(force.force.iter().all(|&c| c == 0.0), "20 cm above: {force:?}");
                         answered += 1;
                         break;
                     }

@@ -18,6 +18,19 @@ const POINT_DOWN: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
 /// Unrotated: the scalpel's edge down, its shaft up.
 const UPRIGHT: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
 
+/// What a viewer watching the scene over zenoh saw during the demo.
+#[derive(Clone, Debug, Default)]
+pub struct Watched {
+    /// Frame statistics received.
+    pub frames: u64,
+    /// The last frame's index.
+    pub last_frame: u64,
+    /// Cut events received.
+    pub cuts: u64,
+    /// Voxels those cut events removed.
+    pub voxels: u64,
+}
+
 /// One scripted client's results: the tool, its transport, and what [`drive`] measured.
 #[derive(Clone, Debug, Default)]
 pub struct ClientReport {
@@ -91,7 +104,10 @@ type Script = fn(&Stage, f64) -> ([f64; 3], [f64; 4], f64);
 ///
 /// # Panics
 /// If a scripted client's thread panics.
-pub fn run(options: &Options, duration: Duration) -> anyhow::Result<(Running, Vec<ClientReport>)> {
+pub fn run(
+    options: &Options,
+    duration: Duration,
+) -> anyhow::Result<(Running, Vec<ClientReport>, Watched)> {
     let scene = crate::scene::load(None)?;
     let stage = stage(&scene)?;
     let running = server::start(&scene, "<embedded demo scene>", options)?;
@@ -103,6 +119,21 @@ pub fn run(options: &Options, duration: Duration) -> anyhow::Result<(Running, Ve
         if options.iceoryx2 { TransportKind::Iceoryx2 } else { TransportKind::Zenoh };
     let plan: [(u32, TransportKind, Script); 2] =
         [(0, scalpel_kind, scalpel), (1, TransportKind::Zenoh, grasper)];
+    // A viewer: the frames' statistics and the cuts, as any zenoh subscriber gets them.
+    let viewer = incise_transport::client::ZenohClient::connect(&running.keys, 1, &endpoint)?;
+    let frames = viewer.watch::<incise_protocol::v1::FrameStats>(&running.keys.frame())?;
+    let cuts = viewer.watch::<incise_protocol::v1::CutEvent>(&running.keys.cut())?;
+    let mut watched = Watched::default();
+    let take = |watched: &mut Watched| {
+        for f in frames.drain() {
+            watched.frames += 1;
+            watched.last_frame = f.frame;
+        }
+        for c in cuts.drain() {
+            watched.cuts += 1;
+            watched.voxels += u64::from(c.voxels_removed);
+        }
+    };
     let reports = std::thread::scope(|scope| -> anyhow::Result<Vec<ClientReport>> {
         let mut handles = Vec::new();
         for (tool, kind, script) in plan {
@@ -118,6 +149,7 @@ pub fn run(options: &Options, duration: Duration) -> anyhow::Result<(Running, Ve
         let start = Instant::now();
         while handles.iter().any(|h| !h.is_finished()) {
             std::thread::sleep(Duration::from_millis(500));
+            take(&mut watched);
             eprint!(
                 "\r\x1b[2Kdemo {:.1}/{:.1} s | {}",
                 start.elapsed().as_secs_f64().min(duration.as_secs_f64()),
@@ -128,12 +160,20 @@ pub fn run(options: &Options, duration: Duration) -> anyhow::Result<(Running, Ve
         eprintln!();
         Ok(handles.into_iter().map(|h| h.join().expect("a demo client panicked")).collect())
     })?;
-    Ok((running, reports))
+    // The last frames are still on their way.
+    std::thread::sleep(Duration::from_millis(100));
+    take(&mut watched);
+    Ok((running, reports, watched))
 }
 
 /// The summary the demo prints.
 #[must_use]
-pub fn summary(running: &Running, reports: &[ClientReport], duration: Duration) -> String {
+pub fn summary(
+    running: &Running,
+    reports: &[ClientReport],
+    watched: &Watched,
+    duration: Duration,
+) -> String {
     let get = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
     let p = &running.physics;
     let secs = duration.as_secs_f64();
@@ -143,7 +183,7 @@ pub fn summary(running: &Running, reports: &[ClientReport], duration: Duration) 
         running.keys.scene(),
         running.tools.len(),
         get(&p.frames),
-        get(&p.frames) as f64 / secs,
+        get(&p.frames) as f64 / running.uptime().as_secs_f64(),
         running.dt * 1e3,
         get(&p.late),
         get(&p.step_errors),
@@ -170,6 +210,11 @@ pub fn summary(running: &Running, reports: &[ClientReport], duration: Duration) 
             r.max_force_n
         );
     }
+    let _ = writeln!(
+        out,
+        "a viewer over zenoh: {} frame statistics (up to frame {}), {} cut events ({} voxels)",
+        watched.frames, watched.last_frame, watched.cuts, watched.voxels
+    );
     let faults: Vec<String> = running
         .faults
         .snapshot()

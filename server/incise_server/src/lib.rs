@@ -3,14 +3,18 @@
 //!
 //! Threads (see `ARCHITECTURE.md`):
 //! - `incise-physics` steps the simulation every `dt` of wall time with each tool's newest pose,
-//!   then hands every tool's linearised contact to the haptic loop ([`physics`]);
+//!   then hands every tool's linearised contact to the haptic loop ([`physics`]) and each
+//!   frame's statistics and cuts to the network ([`network`]);
 //! - `incise-haptics` renders each tool's force from its newest pose and that snapshot, on every
-//!   pose and at least at 1 kHz (`incise_haptics`);
-//! - `incise-forces` sends the forces the haptic loop produced on the transports;
-//! - the transports' own threads receive poses (zenoh's runtime, `incise-shm-rx`);
+//!   pose and at least at 1 kHz (`incise_haptics`); it also waits on iceoryx2's poses event,
+//!   takes those poses and publishes their forces itself;
+//! - `incise-forces` sends the forces over zenoh (woken by the haptic thread);
+//! - `incise-net`, a one-worker tokio runtime, publishes the frames and cuts ([`network`]);
+//! - zenoh's own runtime receives its poses and answers scene queries;
 //! - the main thread prints a status line and waits for SIGINT/SIGTERM or the demo's end.
 
 pub mod demo;
+pub mod network;
 pub mod physics;
 pub mod scene;
 pub mod server;

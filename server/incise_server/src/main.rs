@@ -82,8 +82,8 @@ fn main() -> anyhow::Result<()> {
             "--duration must be a positive number of seconds"
         );
         let duration = Duration::from_secs_f64(cli.duration);
-        let (running, reports) = incise_server::demo::run(&options, duration)?;
-        println!("{}", incise_server::demo::summary(&running, &reports, duration));
+        let (running, reports, watched) = incise_server::demo::run(&options, duration)?;
+        println!("{}", incise_server::demo::summary(&running, &reports, &watched, duration));
         running.stop();
         return Ok(());
     }

@@ -2,12 +2,12 @@
 //! the haptic loop every tool's contact linearised at the new frame, and publishes the frame's
 //! statistics and cuts.
 
+use crate::network::{Outbox, Outgoing};
 use incise_haptics::{LoopShared, ToolSnapshot};
 use incise_protocol::check::check_pose;
 use incise_protocol::v1::{self, ForceFlag};
 use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
 use incise_tool::ToolPose;
-use incise_transport::ServerSide;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -37,7 +37,7 @@ const TRACKED: usize = 8;
 pub fn run(
     mut sim: Simulation,
     shared: &LoopShared,
-    transports: &ServerSide,
+    outbox: &Outbox,
     stats: &PhysicsStats,
     stop: &AtomicBool,
 ) {
@@ -62,15 +62,15 @@ pub fn run(
                     *rate = (n - *at) as f64 / since.elapsed().as_secs_f64();
                     (*since, *at) = (Instant::now(), n);
                 }
-                transports.send_frame(&frame_stats(&frame, &sim, elapsed, *rate));
+                outbox.post(Outgoing::Frame(frame_stats(&frame, &sim, elapsed, *rate)));
                 for cut in &frame.surgical.cuts {
-                    transports.send_cut(&v1::CutEvent {
+                    outbox.post(Outgoing::Cut(v1::CutEvent {
                         frame: frame.index,
                         tool_id: cut.tool as u32,
                         voxels_removed: cut.voxels_removed as u32,
                         links_severed: cut.links_severed as u32,
                         tets_removed: cut.tets_removed as u32,
-                    });
+                    }));
                 }
             }
             Err(e) => {

@@ -1,6 +1,7 @@
 //! Starting and stopping a server: the simulation, the haptic loop, the transports and the
 //! threads between them.
 
+use crate::network::Network;
 use crate::physics::{self, PhysicsStats};
 use anyhow::Context;
 use incise_haptics::{HapticLoop, HapticSettings, LoopIo, LoopShared};
@@ -53,6 +54,8 @@ pub struct Running {
     /// The physics time step (s).
     pub dt: f64,
     transports: Arc<ServerSide>,
+    network: Network,
+    started: std::time::Instant,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
     zenoh_sender: Option<Thread>,
@@ -145,6 +148,8 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     let stop = Arc::new(AtomicBool::new(false));
     let physics_stats = Arc::new(PhysicsStats::default());
     let dt = config.dt();
+    let network =
+        Network::start(Arc::clone(&transports)).context("cannot start the network runtime")?;
     let mut threads = Vec::new();
     // zenoh's force sender: parked until the haptic loop has forces, then sends the new ones
     // (a zenoh put may allocate, so not on the haptic thread).
@@ -215,14 +220,10 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         thread
     });
     threads.push({
-        let (shared, transports, stats, stop) = (
-            Arc::clone(&shared),
-            Arc::clone(&transports),
-            Arc::clone(&physics_stats),
-            Arc::clone(&stop),
-        );
+        let (shared, outbox, stats, stop) =
+            (Arc::clone(&shared), network.outbox(), Arc::clone(&physics_stats), Arc::clone(&stop));
         std::thread::Builder::new().name("incise-physics".into()).spawn(move || {
-            physics::run(sim, &shared, &transports, &stats, &stop);
+            physics::run(sim, &shared, &outbox, &stats, &stop);
         })?
     });
     Ok(Running {
@@ -233,6 +234,8 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         physics: physics_stats,
         dt,
         transports,
+        network,
+        started: std::time::Instant::now(),
         stop,
         threads,
         zenoh_sender,
@@ -250,7 +253,14 @@ impl Running {
         for t in self.threads {
             let _ = t.join();
         }
+        self.network.stop();
         drop(self.transports);
+    }
+
+    /// How long the server has run.
+    #[must_use]
+    pub fn uptime(&self) -> Duration {
+        self.started.elapsed()
     }
 
     /// One line on how the server is doing.
@@ -283,8 +293,12 @@ impl Running {
             format!("{refused} refused: {}", each.join(", "))
         };
         let jitter = self.shared.jitter().quantile_us(0.99).unwrap_or(0.0);
+        let dropped = match self.network.dropped() {
+            0 => String::new(),
+            n => format!(" | {n} frame messages dropped (the network fell behind)"),
+        };
         format!(
-            "frame {} ({} late, {} µs last) | haptics {} updates, jitter p99 {jitter:.0} µs | poses {} ({refused}) | forces: {} | removed {}",
+            "frame {} ({} late, {} µs last) | haptics {} updates, jitter p99 {jitter:.0} µs | poses {} ({refused}) | forces: {} | removed {}{dropped}",
             get(&p.frames),
             get(&p.late),
             get(&p.last_frame_us),

@@ -72,6 +72,25 @@ impl Client {
     }
 }
 
+/// Messages of one kind a zenoh client watches (frame statistics, cuts): what a viewer shows.
+pub struct Watch<M> {
+    messages: flume::Receiver<M>,
+    _subscriber: zenoh::pubsub::Subscriber<()>,
+}
+
+impl<M> Watch<M> {
+    /// The messages received so far and not yet taken.
+    pub fn drain(&self) -> impl Iterator<Item = M> + '_ {
+        self.messages.try_iter()
+    }
+
+    /// The next message, waiting up to `timeout`.
+    #[must_use]
+    pub fn recv_timeout(&self, timeout: Duration) -> Option<M> {
+        self.messages.recv_timeout(timeout).ok()
+    }
+}
+
 /// A random non-zero session id for a new connection.
 fn new_session() -> u32 {
     use std::hash::BuildHasher;
@@ -126,6 +145,27 @@ impl ZenohClient {
             info: keys.info(),
             zenoh: session,
         })
+    }
+
+    /// Watches the messages of type `M` published on `key` (such as `Keys::frame` with
+    /// `v1::FrameStats`, or `Keys::cut` with `v1::CutEvent`); messages that do not decode as
+    /// `M` are skipped.
+    pub fn watch<M: Message + Default + Send + 'static>(
+        &self,
+        key: &str,
+    ) -> Result<Watch<M>, TransportError> {
+        let (tx, messages) = flume::unbounded();
+        let subscriber = self
+            .zenoh
+            .declare_subscriber(key.to_owned())
+            .callback(move |sample| {
+                if let Ok(m) = M::decode(&*sample.payload().to_bytes()) {
+                    let _ = tx.send(m);
+                }
+            })
+            .wait()
+            .map_err(|e| TransportError(format!("zenoh: cannot subscribe to {key}: {e}")))?;
+        Ok(Watch { messages, _subscriber: subscriber })
     }
 
     /// Publishes `bytes` on the tool's pose key, whatever they are (a test of the server's

@@ -100,6 +100,7 @@ fn zenoh_carries_poses_forces_and_the_scene_info_and_counts_garbage() {
     let (kind, got) = seen.lock().unwrap()[0];
     assert_eq!(kind, TransportKind::Zenoh);
     assert_eq!(got.tool_id, 1);
+    assert_eq!(got.client, client.session(), "the pose carries the client's session");
     let f = exchange(&client, &|f| server.send_force(f), &got);
     assert_eq!(f, answer(&got), "the force arrives bit for bit");
     let Client::Zenoh(z) = &client else { unreachable!() };
@@ -137,7 +138,10 @@ fn iceoryx2_carries_poses_and_forces_and_counts_unknown_tools() {
         !seen.lock().unwrap().is_empty()
     });
     let (kind, got) = seen.lock().unwrap()[0];
-    assert_eq!((kind, got), (TransportKind::Iceoryx2, pose(0, 1)));
+    // The pose arrives bit for bit, stamped with the client's session.
+    let sent = RawToolPose { client: client.session(), ..pose(0, 1) };
+    assert_ne!(sent.client, 0);
+    assert_eq!((kind, got), (TransportKind::Iceoryx2, sent));
     let f = exchange(&client, &|f| ports.send_force(f), &got);
     assert_eq!(f, answer(&got));
     let stranger = Client::connect(TransportKind::Iceoryx2, &keys, 2, "").unwrap();

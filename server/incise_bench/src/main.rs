@@ -46,7 +46,8 @@ enum Command {
     Frame(frame::FrameArgs),
     /// Pose → force round trip over zenoh or iceoryx2 between a real server on the liver and a
     /// client in another process sending poses at 1 kHz while it presses and cuts (p50, p99,
-    /// p99.9, max), and the haptic thread's period jitter meanwhile.
+    /// p99.9, max), and the haptic thread's period jitter meanwhile; then the same client
+    /// against an echo server that answers at once (the transport's floor on this machine).
     Latency(latency::LatencyArgs),
     /// `latency`'s server process (started by `latency`).
     #[command(hide = true)]
@@ -54,6 +55,9 @@ enum Command {
     /// `latency`'s client process (started by `latency`).
     #[command(hide = true)]
     LatencyClient(latency::ClientRole),
+    /// `latency`'s echo server: answers every pose at once, no physics (started by `latency`).
+    #[command(hide = true)]
+    LatencyEcho(latency::EchoRole),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -67,5 +71,6 @@ fn main() -> anyhow::Result<()> {
         Command::Latency(args) => latency::run(&args),
         Command::LatencyServer(role) => latency::serve(&role),
         Command::LatencyClient(role) => latency::client(&role),
+        Command::LatencyEcho(role) => latency::echo(&role),
     }
 }

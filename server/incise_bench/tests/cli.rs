@@ -433,7 +433,8 @@ fn frame_report_json_has_the_contract_keys_and_every_frame_is_finite() {
 }
 
 /// `incise-bench latency` over each transport, briefly: a server and a client process run, the
-/// round trips are measured, and the last line holds the contract's keys.
+/// round trips are measured, then the echo server's floor, and the last line holds the
+/// contract's keys.
 #[test]
 fn latency_report_json_has_the_contract_keys() {
     for transport in ["iceoryx2", "zenoh"] {
@@ -444,7 +445,14 @@ fn latency_report_json_has_the_contract_keys() {
         assert!(out.status.success(), "{transport}: {}", String::from_utf8_lossy(&out.stderr));
         let j = last_json(&out);
         assert_eq!(j["transport"], transport);
-        for key in ["rtt_us_p50", "rtt_us_p99", "rtt_us_p999", "jitter_us_p99"] {
+        for key in [
+            "rtt_us_p50",
+            "rtt_us_p99",
+            "rtt_us_p999",
+            "jitter_us_p99",
+            "floor_us_p50",
+            "floor_us_p99",
+        ] {
             assert!(j[key].as_f64().is_some_and(|v| v > 0.0), "{transport}: {key} in {j}");
         }
         assert!(j["samples"].as_u64().unwrap() > 100, "{transport}: {j}");

@@ -5,8 +5,12 @@
 use protox::prost::Message;
 use std::path::PathBuf;
 
-const PROTOS: [&str; 3] =
-    ["proto/incise/v1/tool.proto", "proto/incise/v1/frame.proto", "proto/incise/v1/scene.proto"];
+const PROTOS: [&str; 4] = [
+    "proto/incise/v1/tool.proto",
+    "proto/incise/v1/frame.proto",
+    "proto/incise/v1/scene.proto",
+    "proto/incise/v1/record.proto",
+];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     for proto in PROTOS {

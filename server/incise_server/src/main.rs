@@ -46,6 +46,15 @@ struct Cli {
     /// How long the demo runs (s).
     #[arg(long, default_value_t = 6.0, requires = "demo")]
     duration: f64,
+    /// Record the session into DIR: `<scene>-<unix seconds>.mcap`, every physics frame (the tool
+    /// poses it used, the tools' forces, a hash of the state, its statistics), the cuts and the
+    /// scene, readable by any MCAP tool. The demo records into `incise-recordings` unless
+    /// `--no-record`.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+    /// The demo does not record.
+    #[arg(long, requires = "demo", conflicts_with = "record")]
+    no_record: bool,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -70,6 +79,16 @@ fn main() -> anyhow::Result<()> {
         }),
         iceoryx2: !cli.no_iceoryx2,
         haptics: HapticSettings { max_force_n: cli.max_force, ..HapticSettings::default() },
+        record: match (&cli.record, cli.demo && !cli.no_record) {
+            (Some(dir), _) => Some(dir.clone()),
+            (None, true) => Some(PathBuf::from("incise-recordings")),
+            (None, false) => None,
+        },
+        scene_toml: match &cli.scene {
+            Some(path) => std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read the scene {}", path.display()))?,
+            None => incise_server::scene::DEMO_SCENE.to_owned(),
+        },
     };
     if cli.demo {
         anyhow::ensure!(
@@ -84,7 +103,11 @@ fn main() -> anyhow::Result<()> {
         let duration = Duration::from_secs_f64(cli.duration);
         let (running, reports, watched) = incise_server::demo::run(&options, duration)?;
         println!("{}", incise_server::demo::summary(&running, &reports, &watched, duration));
+        let recording = running.recording().map(|p| p.display().to_string());
         running.stop();
+        if let Some(path) = recording {
+            println!("recording: {path} (open it with any MCAP tool, e.g. `mcap info {path}`)");
+        }
         return Ok(());
     }
     let scene = incise_server::scene::load(cli.scene.as_deref())?;

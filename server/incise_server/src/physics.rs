@@ -1,11 +1,13 @@
 //! The physics thread: steps the simulation in real time with each tool's newest pose, hands
-//! the haptic loop every tool's contact linearised at the new frame, and publishes the frame's
-//! statistics and cuts.
+//! the haptic loop every tool's contact linearised at the new frame, publishes the frame's
+//! statistics and cuts, and hands the recorder (when recording) each frame's record.
 
 use crate::network::{Outbox, Outgoing};
 use incise_haptics::{LoopShared, ToolSnapshot};
 use incise_protocol::check::check_pose;
+use incise_protocol::raw::RawToolPose;
 use incise_protocol::v1::{self, ForceFlag};
+use incise_record::{Record, RecordHandle};
 use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
 use incise_tool::ToolPose;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -38,6 +40,7 @@ pub fn run(
     mut sim: Simulation,
     shared: &LoopShared,
     outbox: &Outbox,
+    recorder: Option<&RecordHandle>,
     stats: &PhysicsStats,
     stop: &AtomicBool,
 ) {
@@ -49,7 +52,8 @@ pub fn run(
     let mut frames_in_second = (second, 0u64, 0.0f64);
     while !stop.load(Ordering::Acquire) {
         let started = Instant::now();
-        let inputs = StepInputs { tools: newest_poses(shared, tools), ..StepInputs::default() };
+        let (inputs, used) = newest_poses(shared, tools);
+        let inputs = StepInputs { tools: inputs, ..StepInputs::default() };
         match sim.step(&inputs) {
             Ok(frame) => {
                 hand_over(&frame, shared, stats);
@@ -62,15 +66,24 @@ pub fn run(
                     *rate = (n - *at) as f64 / since.elapsed().as_secs_f64();
                     (*since, *at) = (Instant::now(), n);
                 }
-                outbox.post(Outgoing::Frame(frame_stats(&frame, &sim, elapsed, *rate)));
+                let frame_stats = frame_stats(&frame, &sim, elapsed, *rate);
+                if let Some(recorder) = recorder {
+                    let record = frame_record(&frame, &used, frame_stats);
+                    recorder.record(Record::Frame(record));
+                }
+                outbox.post(Outgoing::Frame(frame_stats));
                 for cut in &frame.surgical.cuts {
-                    outbox.post(Outgoing::Cut(v1::CutEvent {
+                    let cut = v1::CutEvent {
                         frame: frame.index,
                         tool_id: cut.tool as u32,
                         voxels_removed: cut.voxels_removed as u32,
                         links_severed: cut.links_severed as u32,
                         tets_removed: cut.tets_removed as u32,
-                    }));
+                    };
+                    if let Some(recorder) = recorder {
+                        recorder.record(Record::Cut(cut, frame.time));
+                    }
+                    outbox.post(Outgoing::Cut(cut));
                 }
             }
             Err(e) => {
@@ -97,16 +110,59 @@ pub fn run(
     }
 }
 
-/// Each tool's newest usable pose (an unusable one is left to the haptic loop to count).
-fn newest_poses(shared: &LoopShared, tools: usize) -> Vec<ToolInput> {
+/// Each tool's newest usable pose (an unusable one is left to the haptic loop to count), and
+/// the poses as received (for the recording).
+fn newest_poses(shared: &LoopShared, tools: usize) -> (Vec<ToolInput>, Vec<RawToolPose>) {
     (0..tools)
         .filter_map(|tool| {
             let (raw, _) = shared.newest_pose(tool)?;
             let p = check_pose(&raw).ok()?;
             let pose = ToolPose::new(p.position, p.orientation, p.gripper_angle).ok()?;
-            Some(ToolInput { tool, pose })
+            Some((ToolInput { tool, pose }, raw))
         })
-        .collect()
+        .unzip()
+}
+
+/// What the recording keeps of a frame: the poses it used, each tool's force and contact, the
+/// hash of the state it left, its statistics.
+fn frame_record(frame: &Frame, used: &[RawToolPose], stats: v1::FrameStats) -> v1::FrameRecord {
+    let vec3 = |v: [f64; 3]| Some(v1::Vec3 { x: v[0], y: v[1], z: v[2] });
+    let tools = frame
+        .surgical
+        .tools
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t.pose.is_some())
+        .map(|(i, t)| v1::ToolState {
+            tool_id: i as u32,
+            force: vec3(t.linearisation.force),
+            torque: vec3(t.linearisation.torque),
+            flags: tool_flags(frame, i),
+            contact_points: t.contact_points as u32,
+            held_points: t.held_points as u32,
+        })
+        .collect();
+    v1::FrameRecord {
+        frame: frame.index,
+        sim_time_s: frame.time,
+        poses: used.iter().map(v1::ToolPose::from).collect(),
+        tools,
+        state_hash: frame.state_hash,
+        stats: Some(stats),
+    }
+}
+
+/// Tool `i`'s force flags at `frame`: in contact, cutting.
+fn tool_flags(frame: &Frame, i: usize) -> u32 {
+    let tool = &frame.surgical.tools[i];
+    let mut flags = 0;
+    if tool.contact_points > 0 || tool.held_points > 0 {
+        flags |= ForceFlag::InContact as u32;
+    }
+    if frame.surgical.cuts.iter().any(|c| c.tool == i) {
+        flags |= ForceFlag::Cutting as u32;
+    }
+    flags
 }
 
 /// Every tool's snapshot to the haptic loop, and the tool statistics.
@@ -114,13 +170,7 @@ fn hand_over(frame: &Frame, shared: &LoopShared, stats: &PhysicsStats) {
     for (i, tool) in frame.surgical.tools.iter().enumerate() {
         let Some(pose) = tool.pose else { continue };
         let lin = &tool.linearisation;
-        let mut flags = 0;
-        if tool.contact_points > 0 || tool.held_points > 0 {
-            flags |= ForceFlag::InContact as u32;
-        }
-        if frame.surgical.cuts.iter().any(|c| c.tool == i) {
-            flags |= ForceFlag::Cutting as u32;
-        }
+        let flags = tool_flags(frame, i);
         shared.publish_snapshot(
             i,
             &ToolSnapshot {

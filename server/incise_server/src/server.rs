@@ -7,12 +7,14 @@ use anyhow::Context;
 use incise_haptics::{HapticLoop, HapticSettings, LoopIo, LoopShared};
 use incise_protocol::keys::Keys;
 use incise_protocol::v1;
+use incise_record::{McapRecording, Recorder, Session};
 use incise_scene::Scene;
 use incise_sim::Simulation;
 use incise_sim::config::Cutting;
 use incise_transport::shm::{ShmPorts, ShmServer};
 use incise_transport::zenoh_link::{Endpoints, ZenohServer};
 use incise_transport::{Faults, PoseHandler, ServerSide, TransportKind};
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::{JoinHandle, Thread};
@@ -27,6 +29,10 @@ pub struct Options {
     pub iceoryx2: bool,
     /// The haptic loop's limits.
     pub haptics: HapticSettings,
+    /// Record the session into this folder (`<scene>-<unix seconds>.mcap`).
+    pub record: Option<PathBuf>,
+    /// The scene file's text, stored in a recording (so it replays on its own).
+    pub scene_toml: String,
 }
 
 impl Default for Options {
@@ -35,6 +41,8 @@ impl Default for Options {
             zenoh: Some(Endpoints::listen_loopback(incise_transport::zenoh_link::DEFAULT_PORT)),
             iceoryx2: true,
             haptics: HapticSettings::default(),
+            record: None,
+            scene_toml: crate::scene::DEMO_SCENE.to_owned(),
         }
     }
 }
@@ -55,6 +63,7 @@ pub struct Running {
     pub dt: f64,
     transports: Arc<ServerSide>,
     network: Network,
+    recorder: Option<Recorder>,
     started: std::time::Instant,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
@@ -148,6 +157,10 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     let stop = Arc::new(AtomicBool::new(false));
     let physics_stats = Arc::new(PhysicsStats::default());
     let dt = config.dt();
+    let recorder = match &options.record {
+        Some(dir) => Some(start_recorder(dir, keys.scene(), &options.scene_toml)?),
+        None => None,
+    };
     let network =
         Network::start(Arc::clone(&transports)).context("cannot start the network runtime")?;
     let mut threads = Vec::new();
@@ -220,10 +233,11 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         thread
     });
     threads.push({
+        let record = recorder.as_ref().map(Recorder::handle);
         let (shared, outbox, stats, stop) =
             (Arc::clone(&shared), network.outbox(), Arc::clone(&physics_stats), Arc::clone(&stop));
         std::thread::Builder::new().name("incise-physics".into()).spawn(move || {
-            physics::run(sim, &shared, &outbox, &stats, &stop);
+            physics::run(sim, &shared, &outbox, record.as_ref(), &stats, &stop);
         })?
     });
     Ok(Running {
@@ -235,6 +249,7 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         dt,
         transports,
         network,
+        recorder,
         started: std::time::Instant::now(),
         stop,
         threads,
@@ -255,6 +270,22 @@ impl Running {
         }
         self.network.stop();
         drop(self.transports);
+        if let Some(recorder) = self.recorder {
+            let path = recorder.path().display().to_string();
+            let waits = recorder.stats().waits.load(Ordering::Relaxed);
+            match recorder.finish() {
+                Ok(frames) => tracing::info!(
+                    "recorded {frames} frames to {path} (the physics waited for the recorder {waits} times)"
+                ),
+                Err(e) => tracing::error!("the recording is incomplete: {e}"),
+            }
+        }
+    }
+
+    /// The recording's file, when recording.
+    #[must_use]
+    pub fn recording(&self) -> Option<&Path> {
+        self.recorder.as_ref().map(Recorder::path)
     }
 
     /// How long the server has run.
@@ -293,12 +324,20 @@ impl Running {
             format!("{refused} refused: {}", each.join(", "))
         };
         let jitter = self.shared.jitter().quantile_us(0.99).unwrap_or(0.0);
+        let recording = match &self.recorder {
+            Some(r) => {
+                let s = r.stats();
+                let failed = if s.failed.load(Ordering::Relaxed) { ", FAILED" } else { "" };
+                format!(" | recorded {} frames ({} waits{failed})", get(&s.frames), get(&s.waits))
+            }
+            None => String::new(),
+        };
         let dropped = match self.network.dropped() {
             0 => String::new(),
             n => format!(" | {n} frame messages dropped (the network fell behind)"),
         };
         format!(
-            "frame {} ({} late, {} µs last) | haptics {} updates, jitter p99 {jitter:.0} µs | poses {} ({refused}) | forces: {} | removed {}{dropped}",
+            "frame {} ({} late, {} µs last) | haptics {} updates, jitter p99 {jitter:.0} µs | poses {} ({refused}) | forces: {} | removed {}{recording}{dropped}",
             get(&p.frames),
             get(&p.late),
             get(&p.last_frame_us),
@@ -308,6 +347,24 @@ impl Running {
             get(&p.removed),
         )
     }
+}
+
+/// Creates `dir` and starts recording the session into `<scene>-<unix seconds>.mcap` there.
+fn start_recorder(dir: &Path, scene: &str, scene_toml: &str) -> anyhow::Result<Recorder> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("--record {}: cannot create the folder", dir.display()))?;
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let path = dir.join(format!("{scene}-{secs}.mcap"));
+    let session = Session {
+        scene: scene.to_owned(),
+        scene_toml: scene_toml.to_owned(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        git_revision: option_env!("INCISE_GIT_REVISION").unwrap_or("").into(),
+    };
+    let recording = McapRecording::create(&path, &session)?;
+    Ok(Recorder::start(recording)?)
 }
 
 /// What the `…/info` queryable answers.

@@ -4,39 +4,15 @@
 //! until a force in contact comes back. The test makes the venv it needs under `target/`
 //! (`INCISE_PYTHON` names an interpreter that already has `clients/python/requirements.txt`).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::root;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// A Python with the client's requirements: `INCISE_PYTHON`, or a venv under `target/`.
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os("INCISE_PYTHON") {
-        return p.into();
-    }
-    let venv = root().join("target/python-venv");
-    let python = venv.join("bin/python");
-    let ready = venv.join(".requirements-installed");
-    if !ready.exists() {
-        let made = Command::new("python3").arg("-m").arg("venv").arg(&venv).status().unwrap();
-        assert!(made.success(), "python3 -m venv failed");
-        let installed = Command::new(&python)
-            .args(["-m", "pip", "install", "--quiet", "-r"])
-            .arg(root().join("clients/python/requirements.txt"))
-            .status()
-            .unwrap();
-        assert!(installed.success(), "pip install -r clients/python/requirements.txt failed");
-        std::fs::write(&ready, "").unwrap();
-    }
-    python
-}
-
 #[test]
 fn the_python_client_reads_the_scene_and_feels_the_organ() {
-    let python = python();
+    let python = common::python("python-venv", "clients/python/requirements.txt");
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let mut server = Command::new(env!("CARGO_BIN_EXE_incise-server"))

@@ -1,0 +1,161 @@
+//! One session's MCAP file: its schemas, channels, metadata and attachment, then the messages.
+
+use incise_protocol::v1;
+use prost::Message;
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+/// The topic of every frame's `incise.v1.FrameRecord`.
+pub const FRAME_TOPIC: &str = "/incise/frame";
+/// The topic of every `incise.v1.CutEvent`.
+pub const CUT_TOPIC: &str = "/incise/cut";
+
+/// What went wrong writing a recording, and to which file.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {what}")]
+pub struct RecordError {
+    /// The recording's file.
+    pub path: PathBuf,
+    /// What failed.
+    pub what: String,
+}
+
+/// What a recording says about its session.
+#[derive(Clone, Debug)]
+pub struct Session {
+    /// The scene's name.
+    pub scene: String,
+    /// The scene file's TOML, stored in the recording so that it replays on its own.
+    pub scene_toml: String,
+    /// The incise version that recorded it.
+    pub version: String,
+    /// The git revision it was built from (empty when unknown).
+    pub git_revision: String,
+}
+
+impl Session {
+    /// FNV-1a (64 bit) of the scene's TOML: which scene a recording was made on.
+    #[must_use]
+    pub fn scene_hash(&self) -> u64 {
+        self.scene_toml
+            .bytes()
+            .fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
+    }
+}
+
+/// An MCAP file being written.
+pub struct McapRecording {
+    path: PathBuf,
+    writer: mcap::Writer<BufWriter<File>>,
+    frame_channel: u16,
+    cut_channel: u16,
+    sequence: u32,
+    frames: u64,
+}
+
+impl McapRecording {
+    /// Creates `path` and writes the header, the schemas and channels, the session's metadata
+    /// and the scene as an attachment.
+    pub fn create(path: &Path, session: &Session) -> Result<Self, RecordError> {
+        let err = |what: String| RecordError { path: path.to_owned(), what };
+        let file = File::create(path).map_err(|e| err(format!("cannot create: {e}")))?;
+        let mut writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Lz4))
+            .profile("")
+            .library(format!("incise {}", session.version))
+            // Chunks are closed by the recorder's schedule, not by size.
+            .chunk_size(None)
+            .create(BufWriter::new(file))
+            .map_err(|e| err(format!("cannot start the MCAP file: {e}")))?;
+        let mcap = |e: mcap::McapError| err(format!("cannot write: {e}"));
+        let mut channel = |message: &str, topic: &str| -> Result<u16, RecordError> {
+            let schema = writer
+                .add_schema(message, "protobuf", incise_protocol::DESCRIPTOR_SET)
+                .map_err(mcap)?;
+            writer.add_channel(schema, topic, "protobuf", &BTreeMap::new()).map_err(mcap)
+        };
+        let frame_channel = channel("incise.v1.FrameRecord", FRAME_TOPIC)?;
+        let cut_channel = channel("incise.v1.CutEvent", CUT_TOPIC)?;
+        let metadata = BTreeMap::from([
+            ("incise_version".to_owned(), session.version.clone()),
+            ("git_revision".to_owned(), session.git_revision.clone()),
+            ("scene".to_owned(), session.scene.clone()),
+            ("scene_hash".to_owned(), format!("{:016x}", session.scene_hash())),
+            ("protocol".to_owned(), incise_protocol::PACKAGE.to_owned()),
+        ]);
+        writer
+            .write_metadata(&mcap::records::Metadata { name: "incise".into(), metadata })
+            .map_err(mcap)?;
+        writer
+            .attach(&mcap::Attachment {
+                log_time: 0,
+                create_time: 0,
+                name: "scene.toml".into(),
+                media_type: "application/toml".into(),
+                data: session.scene_toml.as_bytes().into(),
+            })
+            .map_err(mcap)?;
+        Ok(Self {
+            path: path.to_owned(),
+            writer,
+            frame_channel,
+            cut_channel,
+            sequence: 0,
+            frames: 0,
+        })
+    }
+
+    /// The file's path.
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Frames written so far.
+    #[must_use]
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    fn write(&mut self, channel: u16, sim_time_s: f64, bytes: &[u8]) -> Result<(), RecordError> {
+        // Simulated time (ns): the same inputs give the same file.
+        let time = (sim_time_s.max(0.0) * 1e9).round() as u64;
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: self.sequence,
+            log_time: time,
+            publish_time: time,
+        };
+        self.writer.write_to_known_channel(&header, bytes).map_err(|e| self.error(&e))
+    }
+
+    fn error(&self, e: &dyn std::fmt::Display) -> RecordError {
+        RecordError { path: self.path.clone(), what: format!("cannot write: {e}") }
+    }
+
+    /// Writes a frame's record.
+    pub fn frame(&mut self, record: &v1::FrameRecord) -> Result<(), RecordError> {
+        self.write(self.frame_channel, record.sim_time_s, &record.encode_to_vec())?;
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// Writes a cut, made at simulated time `sim_time_s`.
+    pub fn cut(&mut self, cut: &v1::CutEvent, sim_time_s: f64) -> Result<(), RecordError> {
+        self.write(self.cut_channel, sim_time_s, &cut.encode_to_vec())
+    }
+
+    /// Closes the open chunk and flushes it to the file: what is written survives a crash.
+    pub fn close_chunk(&mut self) -> Result<(), RecordError> {
+        self.writer.flush().map_err(|e| self.error(&e))
+    }
+
+    /// Writes the summary (indexes, statistics) and closes the file; the frames written.
+    pub fn finish(mut self) -> Result<u64, RecordError> {
+        self.writer.finish().map_err(|e| self.error(&e))?;
+        Ok(self.frames)
+    }
+}

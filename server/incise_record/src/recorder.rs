@@ -1,0 +1,176 @@
+//! The recorder thread: the physics thread hands it every frame over a bounded queue, and it
+//! writes them to the session's MCAP file, closing a chunk on a schedule.
+
+use crate::mcap_file::{McapRecording, RecordError};
+use incise_protocol::v1;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Records the physics may hand over before it waits: a quarter second at 1 kHz.
+const QUEUE: usize = 256;
+
+/// A chunk is closed after this many frames...
+pub const CHUNK_FRAMES: u64 = 250;
+/// ...or this much wall time, whichever comes first.
+pub const CHUNK_INTERVAL: Duration = Duration::from_millis(250);
+
+/// What the physics hands the recorder.
+#[derive(Clone, Debug)]
+pub enum Record {
+    /// A frame.
+    Frame(v1::FrameRecord),
+    /// A cut, made at simulated time `.1`.
+    Cut(v1::CutEvent, f64),
+}
+
+/// What the recorder counts.
+#[derive(Debug, Default)]
+pub struct RecorderStats {
+    /// Frames written.
+    pub frames: AtomicU64,
+    /// Times the physics found the queue full and waited.
+    pub waits: AtomicU64,
+    /// Records that could not be handed over because the recorder had stopped (a write error).
+    pub lost: AtomicU64,
+    /// Chunks closed.
+    pub chunks: AtomicU64,
+    /// Set once a write failed (the recording then stops; the session goes on).
+    pub failed: AtomicBool,
+}
+
+/// The physics thread's end of the queue.
+#[derive(Clone, Debug)]
+pub struct RecordHandle {
+    tx: SyncSender<Record>,
+    stats: Arc<RecorderStats>,
+}
+
+impl RecordHandle {
+    /// Hands a record over; when the queue is full, counts a wait and waits (a recording never
+    /// drops a frame). A record for a recorder that has stopped is counted as lost.
+    pub fn record(&self, record: Record) {
+        let record = match self.tx.try_send(record) {
+            Ok(()) => return,
+            Err(TrySendError::Full(r)) => {
+                self.stats.waits.fetch_add(1, Ordering::Relaxed);
+                r
+            }
+            Err(TrySendError::Disconnected(_)) => {
+                self.stats.lost.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+        };
+        if self.tx.send(record).is_err() {
+            self.stats.lost.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// The recorder thread and its queue.
+pub struct Recorder {
+    /// `None` once finishing (dropping it closes the queue).
+    handle: Option<RecordHandle>,
+    stats: Arc<RecorderStats>,
+    path: PathBuf,
+    thread: Option<JoinHandle<Result<u64, RecordError>>>,
+}
+
+impl Recorder {
+    /// Starts the thread (`incise-record`) that writes `recording`.
+    pub fn start(recording: McapRecording) -> std::io::Result<Self> {
+        let (tx, rx) = mpsc::sync_channel(QUEUE);
+        let stats = Arc::new(RecorderStats::default());
+        let path = recording.path().to_owned();
+        let thread = {
+            let stats = Arc::clone(&stats);
+            std::thread::Builder::new()
+                .name("incise-record".into())
+                .spawn(move || write_all(recording, &rx, &stats))?
+        };
+        Ok(Self {
+            handle: Some(RecordHandle { tx, stats: Arc::clone(&stats) }),
+            stats,
+            path,
+            thread: Some(thread),
+        })
+    }
+
+    /// A handle to hand records over with.
+    ///
+    /// # Panics
+    /// Never: the handle is only taken by [`Self::finish`], which consumes the recorder.
+    #[must_use]
+    pub fn handle(&self) -> RecordHandle {
+        self.handle.clone().expect("the recorder is not finishing")
+    }
+
+    /// The counters.
+    #[must_use]
+    pub fn stats(&self) -> &RecorderStats {
+        &self.stats
+    }
+
+    /// The file being written.
+    #[must_use]
+    pub fn path(&self) -> &std::path::Path {
+        &self.path
+    }
+
+    /// Writes what is queued, closes the file and returns the frames written. Every handle
+    /// must be dropped first (the thread ends when the queue closes).
+    pub fn finish(mut self) -> Result<u64, RecordError> {
+        drop(self.handle.take());
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(result)) => result,
+            Some(Err(_)) => Err(RecordError {
+                path: self.path.clone(),
+                what: "the recorder thread panicked".into(),
+            }),
+            None => Ok(0),
+        }
+    }
+}
+
+/// The thread: writes every record, closing a chunk every [`CHUNK_FRAMES`] frames or
+/// [`CHUNK_INTERVAL`]; on a write error it stops (the session goes on unrecorded).
+fn write_all(
+    mut recording: McapRecording,
+    rx: &mpsc::Receiver<Record>,
+    stats: &RecorderStats,
+) -> Result<u64, RecordError> {
+    let mut chunk_started = Instant::now();
+    let mut chunk_frames = 0u64;
+    let result = (|| loop {
+        let record = match rx.recv_timeout(CHUNK_INTERVAL) {
+            Ok(r) => Some(r),
+            Err(RecvTimeoutError::Timeout) => None,
+            Err(RecvTimeoutError::Disconnected) => return Ok(()),
+        };
+        match &record {
+            Some(Record::Frame(f)) => {
+                recording.frame(f)?;
+                chunk_frames += 1;
+                stats.frames.fetch_add(1, Ordering::Relaxed);
+            }
+            Some(Record::Cut(c, t)) => recording.cut(c, *t)?,
+            None => {}
+        }
+        if chunk_frames >= CHUNK_FRAMES
+            || (chunk_frames > 0 && chunk_started.elapsed() >= CHUNK_INTERVAL)
+        {
+            recording.close_chunk()?;
+            stats.chunks.fetch_add(1, Ordering::Relaxed);
+            chunk_frames = 0;
+            chunk_started = Instant::now();
+        }
+    })();
+    if let Err(e) = result {
+        stats.failed.store(true, Ordering::Release);
+        return Err(e);
+    }
+    recording.finish()
+}

@@ -88,8 +88,14 @@ pub fn read_scene(path: &Path) -> Result<Scene, SceneFileError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path)
         .map_err(|source| SceneFileError::Read { file: file.clone(), source })?;
-    let mut config = SceneConfig::from_toml(&text, &file)?;
-    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    scene_from_toml(&text, &file, path.parent().unwrap_or_else(|| Path::new(".")))
+}
+
+/// A scene from its TOML `text` (named `file` in messages), with the files it names read
+/// relative to `base`: what a recording's stored scene replays from.
+pub fn scene_from_toml(text: &str, file: &str, base: &Path) -> Result<Scene, SceneFileError> {
+    let mut config = SceneConfig::from_toml(text, file)?;
+    let file = file.to_owned();
     load_tool_meshes(&mut config, base, &file)?;
     let mut notes = Vec::new();
     let geometry = match &config.model {

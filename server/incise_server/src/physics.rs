@@ -116,11 +116,19 @@ fn newest_poses(shared: &LoopShared, tools: usize) -> (Vec<ToolInput>, Vec<RawTo
     (0..tools)
         .filter_map(|tool| {
             let (raw, _) = shared.newest_pose(tool)?;
-            let p = check_pose(&raw).ok()?;
-            let pose = ToolPose::new(p.position, p.orientation, p.gripper_angle).ok()?;
-            Some((ToolInput { tool, pose }, raw))
+            Some((tool_input(&raw)?, raw))
         })
         .unzip()
+}
+
+/// The step's input for a pose as received: checked (and its quaternion normalised) as the
+/// haptic loop checks it; `None` when unusable. A replay converts recorded poses with this same
+/// function, so that it steps with the very inputs the server did.
+#[must_use]
+pub fn tool_input(raw: &RawToolPose) -> Option<ToolInput> {
+    let p = check_pose(raw).ok()?;
+    let pose = ToolPose::new(p.position, p.orientation, p.gripper_angle).ok()?;
+    Some(ToolInput { tool: raw.tool_id as usize, pose })
 }
 
 /// What the recording keeps of a frame: the poses it used, each tool's force and contact, the

@@ -1,0 +1,132 @@
+//! Replaying a recording: the scene stored in it is rebuilt, every frame is stepped again with the
+//! tool poses the server stepped it with (converted exactly as the server converts them), and
+//! each frame's state hash and tool forces are compared with the recorded ones. On the machine
+//! and build that recorded it, a replay matches bit for bit; elsewhere, `tolerance` compares the
+//! forces within bounds instead (the state hash then cannot match and is not compared).
+
+use incise_protocol::raw::RawToolPose;
+use incise_protocol::v1;
+use incise_record::Contents;
+use incise_sim::{Simulation, StepInputs};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// How a replay compares.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Compare {
+    /// `None`: bit for bit (state hash and forces). `Some(t)`: forces and torques within `t`
+    /// (N, N·m), state hash not compared.
+    pub tolerance: Option<f64>,
+}
+
+/// Where a replay first left the recording.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Divergence {
+    /// The frame.
+    pub frame: u64,
+    /// What differed: `state`, `tool N force`, `tool N torque`, `frame index`, `step`.
+    pub what: String,
+    /// The largest difference found there (N or N·m; 0 for the state hash, which has no
+    /// magnitude).
+    pub deviation: f64,
+}
+
+/// What a replay found.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    /// Frames stepped and compared.
+    pub frames: u64,
+    /// The first divergence, if any.
+    pub divergence: Option<Divergence>,
+    /// Wall time of the stepping.
+    pub elapsed: Duration,
+}
+
+/// Rebuilds `contents`' scene (files it names are read relative to `base`).
+pub fn simulation(contents: &Contents, base: &Path) -> anyhow::Result<Simulation> {
+    let toml = contents.scene_toml.as_deref().ok_or_else(|| {
+        anyhow::anyhow!("the recording holds no scene (no scene.toml attachment)")
+    })?;
+    let scene = incise_scene::scene_from_toml(toml, "<the recording's scene>", base)?;
+    Ok(Simulation::new(&scene.config, &scene.geometry, "<the recording's scene>")?)
+}
+
+/// Replays `contents` on `sim`, calling `progress` after every frame; stops at the first
+/// divergence.
+pub fn replay(
+    contents: &Contents,
+    sim: &mut Simulation,
+    compare: Compare,
+    mut progress: impl FnMut(u64),
+) -> Outcome {
+    let started = Instant::now();
+    let mut frames = 0;
+    for record in &contents.frames {
+        let tools = record
+            .poses
+            .iter()
+            .filter_map(|p| RawToolPose::try_from(p).ok())
+            .filter_map(|raw| incise_server::physics::tool_input(&raw))
+            .collect();
+        let inputs = StepInputs { tools, ..StepInputs::default() };
+        let diverged = |frames: u64, what: String, deviation: f64| Outcome {
+            frames,
+            divergence: Some(Divergence { frame: record.frame, what, deviation }),
+            elapsed: started.elapsed(),
+        };
+        let frame = match sim.step(&inputs) {
+            Ok(f) => f,
+            Err(e) => return diverged(frames, format!("step: {e}"), 0.0),
+        };
+        frames += 1;
+        if frame.index != record.frame {
+            let what = format!("frame index {} (recorded {})", frame.index, record.frame);
+            return diverged(frames, what, 0.0);
+        }
+        if let Some(d) = compare_tools(&frame, record, compare) {
+            return diverged(frames, d.0, d.1);
+        }
+        if compare.tolerance.is_none() && frame.state_hash != record.state_hash {
+            return diverged(frames, "state".into(), 0.0);
+        }
+        progress(frames);
+    }
+    Outcome { frames, divergence: None, elapsed: started.elapsed() }
+}
+
+/// The first tool whose force or torque differs beyond the comparison's bound: what and by how
+/// much (the largest component difference).
+fn compare_tools(
+    frame: &incise_sim::Frame,
+    record: &v1::FrameRecord,
+    compare: Compare,
+) -> Option<(String, f64)> {
+    let bound = compare.tolerance.unwrap_or(0.0);
+    let array = |v: &Option<v1::Vec3>| v.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
+    for t in &record.tools {
+        let Some(tool) = frame.surgical.tools.get(t.tool_id as usize) else {
+            return Some((format!("tool {} missing", t.tool_id), 0.0));
+        };
+        let lin = &tool.linearisation;
+        for (what, got, want) in
+            [("force", lin.force, array(&t.force)), ("torque", lin.torque, array(&t.torque))]
+        {
+            let bits_differ = got.iter().zip(&want).any(|(a, b)| a.to_bits() != b.to_bits());
+            // The largest difference, NaN if any is (f64::max would drop it).
+            let off = got
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, |m: f64, d| if d.is_nan() || d > m { d } else { m });
+            let differs = match compare.tolerance {
+                None => bits_differ,
+                // A NaN deviation is a divergence too.
+                Some(_) => off.is_nan() || off > bound,
+            };
+            if differs {
+                return Some((format!("tool {} {what}", t.tool_id), off));
+            }
+        }
+    }
+    None
+}

@@ -403,6 +403,12 @@ pub fn client(role: &ClientRole) -> anyhow::Result<()> {
             }
         },
     );
+    print_report(&report);
+    Ok(())
+}
+
+/// A client role's last line: its round trips as one JSON object.
+fn print_report(report: &incise_client::drive::Report) {
     let json = serde_json::json!({
         "samples": report.rtt_us.len(),
         "sent": report.sent,
@@ -413,7 +419,6 @@ pub fn client(role: &ClientRole) -> anyhow::Result<()> {
         "max_force_n": report.max_force_n,
     });
     println!("{json}");
-    Ok(())
 }
 
 /// The client role against the echo server: a fixed pose at 1 kHz for the duration (after a
@@ -423,13 +428,6 @@ fn echo_client(role: &ClientRole, keys: &Keys) -> anyhow::Result<()> {
     std::thread::sleep(Duration::from_millis(500));
     let duration = Duration::from_secs_f64(role.duration);
     let report = drive(&client, 0, 1000.0, duration, |_| ([0.0; 3], BLADE_UP, 0.0), |_| {});
-    let json = serde_json::json!({
-        "samples": report.rtt_us.len(),
-        "sent": report.sent,
-        "rtt_us_p50": report.quantile(0.5),
-        "rtt_us_p99": report.quantile(0.99),
-        "rtt_us_p999": report.quantile(0.999),
-    });
-    println!("{json}");
+    print_report(&report);
     Ok(())
 }

@@ -33,6 +33,25 @@ impl Report {
     }
 }
 
+/// One line: poses sent and answered, the round trip's p50, p99, p99.9 and max (µs), the largest
+/// force.
+impl std::fmt::Display for Report {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let q = |x: f64| self.quantile(x).map_or("-".into(), |v| format!("{v:.0}"));
+        write!(
+            f,
+            "{} poses, {} answered before the next was due; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.3} N",
+            self.sent,
+            self.rtt_us.len(),
+            q(0.5),
+            q(0.99),
+            q(0.999),
+            q(1.0),
+            self.max_force_n
+        )
+    }
+}
+
 /// Sends tool `tool`'s pose `pose_at(t)` (t in seconds from the start) at `rate_hz` for
 /// `duration`, waiting after each for the force that answers it until the next is due.
 /// `on_force` sees every force received.

@@ -195,20 +195,7 @@ pub fn summary(
     );
     for c in reports {
         let r = &c.report;
-        let q = |x: f64| r.quantile(x).map_or("-".into(), |v| format!("{v:.0}"));
-        let _ = writeln!(
-            out,
-            "{} over {}: {} poses, {} answered within 1 ms; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.2} N",
-            c.tool,
-            c.transport,
-            r.sent,
-            r.rtt_us.len(),
-            q(0.5),
-            q(0.99),
-            q(0.999),
-            q(1.0),
-            r.max_force_n
-        );
+        let _ = writeln!(out, "{} over {}: {r}", c.tool, c.transport);
     }
     let _ = writeln!(
         out,

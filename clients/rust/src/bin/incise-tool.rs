@@ -115,18 +115,7 @@ fn main() -> anyhow::Result<()> {
 }
 
 fn print_summary(cli: &Cli, r: &Report) {
-    let q = |x: f64| r.quantile(x).unwrap_or(f64::NAN);
-    println!(
-        "{} poses over {}, {} answered before the next; round trip p50 {:.0} µs, p99 {:.0} µs, p99.9 {:.0} µs, max {:.0} µs; max force {:.3} N",
-        r.sent,
-        cli.transport.name(),
-        r.rtt_us.len(),
-        q(0.5),
-        q(0.99),
-        q(0.999),
-        q(1.0),
-        r.max_force_n
-    );
+    println!("tool {} over {}: {r}", cli.tool, cli.transport.name());
     if cli.json {
         let json = serde_json::json!({
             "transport": cli.transport.name(),

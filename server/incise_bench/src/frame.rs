@@ -45,6 +45,11 @@ pub struct FrameArgs {
     /// End with one line holding one JSON object.
     #[arg(long)]
     json: bool,
+    /// Also run the script again on a fresh build, recording every frame into DIR as
+    /// `incise-server --record` does (an MCAP file), and report the full-frame rate with and
+    /// without recording and their ratio, measured in this one run.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
 }
 
 /// A stage's times over the frames (ms).
@@ -91,6 +96,16 @@ struct Report {
     fingerprint: String,
     gpu: &'static str,
     gpu_cpu_max_diff: Option<f64>,
+    /// With `--record`: frames per second of wall time over the script without recording...
+    record_frame_hz_off: Option<f64>,
+    /// ...and with it (the recorder thread writing the MCAP file)...
+    record_frame_hz_on: Option<f64>,
+    /// ...and on / off.
+    record_ratio: Option<f64>,
+    /// The recording's size (bytes) and whether its frames were bit-identical to the run
+    /// without recording.
+    record_bytes: Option<u64>,
+    record_bit_identical: Option<bool>,
 }
 
 /// The script's phases.
@@ -308,6 +323,64 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
     }
     let o = Organ { unit: o.unit, ..organ(&sim)? };
     let script = script(&o);
+    let (frames, wall_off) = play(&mut sim, &script, &o, None)?;
+    let mut report = summarise(args, &sim, model, voxels, elements, &frames);
+    let stroke: Vec<u32> = frames
+        .iter()
+        .filter(|(p, _)| *p == Phase::Stroke)
+        .flat_map(|(_, f)| f.surgical.edit.remove_voxels.iter().copied())
+        .collect();
+    if !stroke.is_empty() && sim.grid().is_some() {
+        report.cut_stroke_batch_ms = Some(batch_cut(&scene, &args.scene, &exec, &stroke)?);
+    }
+    if let Some(dir) = &args.record {
+        let mut again =
+            Simulation::with_executor(&scene.config, &scene.geometry, &args.scene, &exec)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+        for _ in 0..200 {
+            again.step(&StepInputs::default()).map_err(|e| anyhow::anyhow!("{e}"))?;
+        }
+        std::fs::create_dir_all(dir).with_context(|| format!("--record {}", dir.display()))?;
+        let path = dir.join(format!("frame-{}.mcap", args.scene.replace(['/', '.'], "_")));
+        let session = incise_record::Session {
+            scene: args.scene.clone(),
+            scene_toml: std::fs::read_to_string(&path).unwrap_or_default(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            git_revision: String::new(),
+        };
+        let recorder =
+            incise_record::Recorder::start(incise_record::McapRecording::create(&path, &session)?)?;
+        let (recorded, wall_on) = play(&mut again, &script, &o, Some(&recorder.handle()))?;
+        recorder.finish()?;
+        let hz = |n: usize, wall: std::time::Duration| n as f64 / wall.as_secs_f64();
+        let (off, on) = (hz(frames.len(), wall_off), hz(recorded.len(), wall_on));
+        report.record_frame_hz_off = Some(off);
+        report.record_frame_hz_on = Some(on);
+        report.record_ratio = Some(on / off);
+        report.record_bytes = Some(std::fs::metadata(&path)?.len());
+        report.record_bit_identical = Some(
+            frames.len() == recorded.len()
+                && frames.iter().zip(&recorded).all(|(a, b)| a.1.state_hash == b.1.state_hash),
+        );
+        eprintln!("recorded into {}", path.display());
+    }
+    print_report(&report);
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    }
+    Ok(())
+}
+
+/// Steps `script` on `sim` (tools posed as the script says), handing every frame's record to
+/// `recorder` when given, as the server's physics thread does; the frames and the loop's wall
+/// time.
+fn play(
+    sim: &mut Simulation,
+    script: &Script,
+    o: &Organ,
+    recorder: Option<&incise_record::RecordHandle>,
+) -> anyhow::Result<(Vec<(Phase, Frame)>, std::time::Duration)> {
+    let started = std::time::Instant::now();
     let mut frames: Vec<(Phase, Frame)> = Vec::with_capacity(script.frames.len());
     for (phase, scalpel, transector) in &script.frames {
         let mut tools = Vec::new();
@@ -332,25 +405,25 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
             tools
                 .push(ToolInput { tool: 0, pose: ToolPose { pose: Pose::at(away), gripper: 0.0 } });
         }
+        let raw: Vec<incise_protocol::raw::RawToolPose> = tools
+            .iter()
+            .map(|t| incise_protocol::raw::RawToolPose {
+                orientation: t.pose.pose.rotation(),
+                ..incise_protocol::raw::RawToolPose::at(t.tool as u32, t.pose.pose.position())
+            })
+            .collect();
+        let step_started = std::time::Instant::now();
         let frame = sim
             .step(&StepInputs { tools, ..StepInputs::default() })
             .map_err(|e| anyhow::anyhow!("{e}"))?;
+        if let Some(recorder) = recorder {
+            use incise_server::physics::{frame_record, frame_stats};
+            let stats = frame_stats(&frame, sim, step_started.elapsed(), 0.0);
+            recorder.record(incise_record::Record::Frame(frame_record(&frame, &raw, stats)));
+        }
         frames.push((*phase, frame));
     }
-    let mut report = summarise(args, &sim, model, voxels, elements, &frames);
-    let stroke: Vec<u32> = frames
-        .iter()
-        .filter(|(p, _)| *p == Phase::Stroke)
-        .flat_map(|(_, f)| f.surgical.edit.remove_voxels.iter().copied())
-        .collect();
-    if !stroke.is_empty() && sim.grid().is_some() {
-        report.cut_stroke_batch_ms = Some(batch_cut(&scene, &args.scene, &exec, &stroke)?);
-    }
-    print_report(&report);
-    if args.json {
-        println!("{}", serde_json::to_string(&report)?);
-    }
-    Ok(())
+    Ok((frames, started.elapsed()))
 }
 
 /// The time (ms, median of 5) to remove `voxels` in one edit from the settled organ, surface
@@ -450,6 +523,11 @@ fn summarise(
         fingerprint: format!("{:016x}", fingerprint(frames.iter().map(|(_, f)| f))),
         gpu: "none",
         gpu_cpu_max_diff: None,
+        record_frame_hz_off: None,
+        record_frame_hz_on: None,
+        record_ratio: None,
+        record_bytes: None,
+        record_bit_identical: None,
     }
 }
 
@@ -507,4 +585,13 @@ fn print_report(r: &Report) {
         r.non_finite_frames,
         r.fingerprint
     );
+    if let (Some(off), Some(on), Some(ratio)) =
+        (r.record_frame_hz_off, r.record_frame_hz_on, r.record_ratio)
+    {
+        println!(
+            "recording: {off:.0} frames/s without, {on:.0} with ({ratio:.3}×, one run); {} bytes; frames bit-identical: {}",
+            r.record_bytes.unwrap_or(0),
+            r.record_bit_identical.unwrap_or(false)
+        );
+    }
 }

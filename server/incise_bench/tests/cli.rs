@@ -432,6 +432,32 @@ fn frame_report_json_has_the_contract_keys_and_every_frame_is_finite() {
     }
 }
 
+/// `incise-bench frame --record DIR` runs the script again while recording it: the recording
+/// reads back with every frame, those frames are bit-identical to the unrecorded run, and the
+/// rates with and without recording and their ratio are reported (printed, not asserted).
+#[test]
+fn frame_report_records_the_script_and_reports_the_rate_with_and_without() {
+    let dir = std::env::temp_dir().join(format!("incise_frame_record_{}", std::process::id()));
+    let out = bench()
+        .args(["frame", "--scene", "liver", "--stride", "16,16,8", "--levels", "2", "--json"])
+        .arg("--record")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    println!(
+        "ratio {} ({} → {} frames/s)",
+        j["record_ratio"], j["record_frame_hz_off"], j["record_frame_hz_on"]
+    );
+    assert!(j["record_ratio"].as_f64().is_some_and(|r| r > 0.0), "{j}");
+    assert_eq!(j["record_bit_identical"], true);
+    let file = std::fs::read_dir(&dir).unwrap().next().unwrap().unwrap().path();
+    let contents = incise_record::read_recording(&std::fs::read(&file).unwrap()).unwrap();
+    assert_eq!(contents.frames.len() as u64, j["frames"].as_u64().unwrap());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `incise-bench latency` over each transport, briefly: a server and a client process run, the
 /// round trips are measured, then the echo server's floor, and the last line holds the
 /// contract's keys.

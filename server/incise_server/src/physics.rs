@@ -133,7 +133,8 @@ pub fn tool_input(raw: &RawToolPose) -> Option<ToolInput> {
 
 /// What the recording keeps of a frame: the poses it used, each tool's force and contact, the
 /// hash of the state it left, its statistics.
-fn frame_record(frame: &Frame, used: &[RawToolPose], stats: v1::FrameStats) -> v1::FrameRecord {
+#[must_use]
+pub fn frame_record(frame: &Frame, used: &[RawToolPose], stats: v1::FrameStats) -> v1::FrameRecord {
     let vec3 = |v: [f64; 3]| Some(v1::Vec3 { x: v[0], y: v[1], z: v[2] });
     let tools = frame
         .surgical
@@ -201,7 +202,10 @@ fn hand_over(frame: &Frame, shared: &LoopShared, stats: &PhysicsStats) {
     stats.removed.fetch_add(removed as u64, Ordering::Relaxed);
 }
 
-fn frame_stats(frame: &Frame, sim: &Simulation, wall: Duration, rate: f64) -> v1::FrameStats {
+/// A frame's statistics: its stage times, what it touched and cut, the surface's size, and
+/// `rate` (frames per second of wall time).
+#[must_use]
+pub fn frame_stats(frame: &Frame, sim: &Simulation, wall: Duration, rate: f64) -> v1::FrameStats {
     let c = &frame.counters;
     let ms = |ns: u64| ns as f64 * 1e-6;
     v1::FrameStats {

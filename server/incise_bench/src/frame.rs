@@ -351,6 +351,7 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
         let recorder =
             incise_record::Recorder::start(incise_record::McapRecording::create(&path, &session)?)?;
         let (recorded, wall_on) = play(&mut again, &script, &o, Some(&recorder.handle()))?;
+        let waits = recorder.stats().waits.load(std::sync::atomic::Ordering::Relaxed);
         recorder.finish()?;
         let hz = |n: usize, wall: std::time::Duration| n as f64 / wall.as_secs_f64();
         let (off, on) = (hz(frames.len(), wall_off), hz(recorded.len(), wall_on));
@@ -362,7 +363,10 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
             frames.len() == recorded.len()
                 && frames.iter().zip(&recorded).all(|(a, b)| a.1.state_hash == b.1.state_hash),
         );
-        eprintln!("recorded into {}", path.display());
+        eprintln!(
+            "recorded into {} (the physics waited for the recorder {waits} times)",
+            path.display()
+        );
     }
     print_report(&report);
     if args.json {
@@ -405,18 +409,22 @@ fn play(
             tools
                 .push(ToolInput { tool: 0, pose: ToolPose { pose: Pose::at(away), gripper: 0.0 } });
         }
-        let raw: Vec<incise_protocol::raw::RawToolPose> = tools
-            .iter()
-            .map(|t| incise_protocol::raw::RawToolPose {
-                orientation: t.pose.pose.rotation(),
-                ..incise_protocol::raw::RawToolPose::at(t.tool as u32, t.pose.pose.position())
-            })
-            .collect();
+        // The poses as the server would have received them, only when recording: the run
+        // without recording must not pay for it.
+        let raw: Option<Vec<incise_protocol::raw::RawToolPose>> = recorder.map(|_| {
+            tools
+                .iter()
+                .map(|t| incise_protocol::raw::RawToolPose {
+                    orientation: t.pose.pose.rotation(),
+                    ..incise_protocol::raw::RawToolPose::at(t.tool as u32, t.pose.pose.position())
+                })
+                .collect()
+        });
         let step_started = std::time::Instant::now();
         let frame = sim
             .step(&StepInputs { tools, ..StepInputs::default() })
             .map_err(|e| anyhow::anyhow!("{e}"))?;
-        if let Some(recorder) = recorder {
+        if let (Some(recorder), Some(raw)) = (recorder, raw) {
             use incise_server::physics::{frame_record, frame_stats};
             let stats = frame_stats(&frame, sim, step_started.elapsed(), 0.0);
             recorder.record(incise_record::Record::Frame(frame_record(&frame, &raw, stats)));

@@ -101,7 +101,6 @@ fn compare_tools(
     record: &v1::FrameRecord,
     compare: Compare,
 ) -> Option<(String, f64)> {
-    let bound = compare.tolerance.unwrap_or(0.0);
     let array = |v: &Option<v1::Vec3>| v.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
     for t in &record.tools {
         let Some(tool) = frame.surgical.tools.get(t.tool_id as usize) else {
@@ -121,7 +120,7 @@ fn compare_tools(
             let differs = match compare.tolerance {
                 None => bits_differ,
                 // A NaN deviation is a divergence too.
-                Some(_) => off.is_nan() || off > bound,
+                Some(bound) => off.is_nan() || off > bound,
             };
             if differs {
                 return Some((format!("tool {} {what}", t.tool_id), off));

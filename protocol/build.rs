@@ -1,15 +1,16 @@
-//! Compiles `proto/incise/v1/*.proto` with protox (no protoc on the machine), generates the
+//! Compiles `proto/incise/v1/*.proto` (and the Foxglove schemas recordings use) with protox (no protoc on the machine), generates the
 //! Rust types with prost, and keeps the encoded `FileDescriptorSet` for readers that decode
 //! without our code (the recorder embeds it).
 
 use protox::prost::Message;
 use std::path::PathBuf;
 
-const PROTOS: [&str; 4] = [
+const PROTOS: [&str; 5] = [
     "proto/incise/v1/tool.proto",
     "proto/incise/v1/frame.proto",
     "proto/incise/v1/scene.proto",
     "proto/incise/v1/record.proto",
+    "proto/foxglove/scene.proto",
 ];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -98,13 +98,20 @@ struct Report {
     gpu_cpu_max_diff: Option<f64>,
     /// With `--record`: frames per second of wall time over the script without recording...
     record_frame_hz_off: Option<f64>,
-    /// ...and with it (the recorder thread writing the MCAP file)...
+    /// ...and with it (the recorder thread writing the MCAP and `.rrd` files, the surface at the
+    /// server's default geometry rate)...
     record_frame_hz_on: Option<f64>,
     /// ...and on / off.
     record_ratio: Option<f64>,
     /// The recording's size (bytes) and whether its frames were bit-identical to the run
     /// without recording.
     record_bytes: Option<u64>,
+    /// The `.rrd` twin's size (bytes).
+    record_rrd_bytes: Option<u64>,
+    /// The files' sizes per minute of session (MB per minute of simulated time, which a server
+    /// keeps up with wall time): MCAP, `.rrd`.
+    record_mb_per_min: Option<f64>,
+    record_rrd_mb_per_min: Option<f64>,
     record_bit_identical: Option<bool>,
 }
 
@@ -341,15 +348,25 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
             again.step(&StepInputs::default()).map_err(|e| anyhow::anyhow!("{e}"))?;
         }
         std::fs::create_dir_all(dir).with_context(|| format!("--record {}", dir.display()))?;
-        let path = dir.join(format!("frame-{}.mcap", args.scene.replace(['/', '.'], "_")));
+        let file = dir.join(format!("frame-{}.mcap", args.scene.replace(['/', '.'], "_")));
+        let tools = incise_server::physics::tool_looks(&scene.config);
         let session = incise_record::Session {
             scene: args.scene.clone(),
             scene_toml: std::fs::read_to_string(&path).unwrap_or_default(),
             version: env!("CARGO_PKG_VERSION").into(),
             git_revision: String::new(),
+            tools: tools.clone(),
+            scene_interval_s: 0.1,
         };
-        let recorder =
-            incise_record::Recorder::start(incise_record::McapRecording::create(&path, &session)?)?;
+        // What the server records: the MCAP file and its `.rrd` twin.
+        let recorder = incise_record::Recorder::with_sinks(incise_record::Sinks {
+            mcap: Some(incise_record::McapRecording::create(&file, &session)?),
+            rrd: Some(
+                incise_record::RerunLog::save(&file.with_extension("rrd"), &tools)
+                    .map_err(anyhow::Error::msg)?,
+            ),
+            live: None,
+        })?;
         let (recorded, wall_on) = play(&mut again, &script, &o, Some(&recorder.handle()))?;
         let waits = recorder.stats().waits.load(std::sync::atomic::Ordering::Relaxed);
         recorder.finish()?;
@@ -358,14 +375,19 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
         report.record_frame_hz_off = Some(off);
         report.record_frame_hz_on = Some(on);
         report.record_ratio = Some(on / off);
-        report.record_bytes = Some(std::fs::metadata(&path)?.len());
+        report.record_bytes = Some(std::fs::metadata(&file)?.len());
+        report.record_rrd_bytes = Some(std::fs::metadata(file.with_extension("rrd"))?.len());
+        let sim_s = recorded.len() as f64 * scene.config.dt();
+        let per_min = |bytes: Option<u64>| bytes.map(|b| b as f64 / 1e6 / sim_s * 60.0);
+        report.record_mb_per_min = per_min(report.record_bytes);
+        report.record_rrd_mb_per_min = per_min(report.record_rrd_bytes);
         report.record_bit_identical = Some(
             frames.len() == recorded.len()
                 && frames.iter().zip(&recorded).all(|(a, b)| a.1.state_hash == b.1.state_hash),
         );
         eprintln!(
             "recorded into {} (the physics waited for the recorder {waits} times)",
-            path.display()
+            file.display()
         );
     }
     print_report(&report);
@@ -375,9 +397,9 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Steps `script` on `sim` (tools posed as the script says), handing every frame's record to
-/// `recorder` when given, as the server's physics thread does; the frames and the loop's wall
-/// time.
+/// Steps `script` on `sim` (tools posed as the script says), handing every frame's record and
+/// the surface at the default geometry rate to `recorder` when given, as the server's physics
+/// thread does; the frames and the loop's wall time.
 fn play(
     sim: &mut Simulation,
     script: &Script,
@@ -386,6 +408,8 @@ fn play(
 ) -> anyhow::Result<(Vec<(Phase, Frame)>, std::time::Duration)> {
     let started = std::time::Instant::now();
     let mut frames: Vec<(Phase, Frame)> = Vec::with_capacity(script.frames.len());
+    let mut clock =
+        incise_server::physics::GeometryClock::new(incise_server::physics::DEFAULT_GEOMETRY_HZ);
     for (phase, scalpel, transector) in &script.frames {
         let mut tools = Vec::new();
         if let Some(p) = scalpel {
@@ -428,6 +452,9 @@ fn play(
             use incise_server::physics::{frame_record, frame_stats};
             let stats = frame_stats(&frame, sim, step_started.elapsed(), 0.0);
             recorder.record(incise_record::Record::Frame(frame_record(&frame, &raw, stats)));
+            if let Some(surface) = clock.surface(sim, &frame) {
+                recorder.record(incise_record::Record::Surface(surface));
+            }
         }
         frames.push((*phase, frame));
     }
@@ -535,6 +562,9 @@ fn summarise(
         record_frame_hz_on: None,
         record_ratio: None,
         record_bytes: None,
+        record_rrd_bytes: None,
+        record_mb_per_min: None,
+        record_rrd_mb_per_min: None,
         record_bit_identical: None,
     }
 }
@@ -597,8 +627,11 @@ fn print_report(r: &Report) {
         (r.record_frame_hz_off, r.record_frame_hz_on, r.record_ratio)
     {
         println!(
-            "recording: {off:.0} frames/s without, {on:.0} with ({ratio:.3}×, one run); {} bytes; frames bit-identical: {}",
+            "recording: {off:.0} frames/s without, {on:.0} with ({ratio:.3}×, one run); MCAP {} bytes ({:.1} MB per minute of session), .rrd {} bytes ({:.1} MB/min); frames bit-identical: {}",
             r.record_bytes.unwrap_or(0),
+            r.record_mb_per_min.unwrap_or(0.0),
+            r.record_rrd_bytes.unwrap_or(0),
+            r.record_rrd_mb_per_min.unwrap_or(0.0),
             r.record_bit_identical.unwrap_or(false)
         );
     }

@@ -452,9 +452,20 @@ fn frame_report_records_the_script_and_reports_the_rate_with_and_without() {
     );
     assert!(j["record_ratio"].as_f64().is_some_and(|r| r > 0.0), "{j}");
     assert_eq!(j["record_bit_identical"], true);
-    let file = std::fs::read_dir(&dir).unwrap().next().unwrap().unwrap().path();
+    let file = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .unwrap();
     let contents = incise_record::read_recording(&std::fs::read(&file).unwrap()).unwrap();
     assert_eq!(contents.frames.len() as u64, j["frames"].as_u64().unwrap());
+    assert!(
+        contents.scene_toml.as_deref().is_some_and(|t| t.contains("[volume]")),
+        "the scene is stored"
+    );
+    assert!(!contents.surfaces.is_empty(), "the surface is recorded");
+    assert!(file.with_extension("rrd").is_file(), "the .rrd twin is written");
+    assert!(j["record_mb_per_min"].as_f64().is_some_and(|m| m > 0.0), "{j}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -8,6 +8,12 @@
 //! |---|---|---|
 //! | `/incise/frame` | `incise.v1.FrameRecord` | every physics frame: the tool poses it used, each tool's force and contact, a hash of the state it left, its statistics |
 //! | `/incise/cut` | `incise.v1.CutEvent` | every cut |
+//! | `/incise/surface` | `incise.v1.SurfaceMesh` | the organ's surface: whole on the first frame and once a second (keyframes); every vertex's position at the geometry rate; each topology change on the frame that made it |
+//! | `/foxglove/scene` | `foxglove.SceneUpdate` | the organ (a triangle list per tissue label) and the tools with their force arrows, every [`Session::scene_interval_s`] of simulated time |
+//! | `/foxglove/tools/<name>/pose` | `foxglove.PoseInFrame` | every frame's pose of each tool |
+//!
+//! The `foxglove.*` channels use Foxglove's published schemas, so Foxglove draws the session
+//! without a plugin.
 //!
 //! The scene's TOML is attached (`scene.toml`), and a metadata record `incise` names the incise
 //! version, the git revision and the scene's hash. Message log times are simulated time (ns), so
@@ -17,11 +23,24 @@
 //! bounded queue and waits when the queue is full (a recording never drops a frame; the waits
 //! are counted). Chunks are closed (LZ4-compressed, indexed) every [`CHUNK_FRAMES`] frames and
 //! at least every [`CHUNK_INTERVAL`], so a crash loses at most the last open chunk.
+//!
+//! The same thread writes the session's `.rrd` file ([`RerunLog`]) and feeds a live Rerun
+//! viewer ([`LiveStream`]), which drops surface frames rather than make anyone wait.
 
+pub mod foxglove;
 pub mod mcap_file;
 pub mod read;
 pub mod recorder;
+pub mod rerun_log;
+pub mod visual;
 
-pub use mcap_file::{CUT_TOPIC, FRAME_TOPIC, McapRecording, RecordError, Session};
+pub use mcap_file::{
+    CUT_TOPIC, FRAME_TOPIC, McapRecording, POSE_TOPIC_PREFIX, RecordError, SCENE_TOPIC,
+    SURFACE_TOPIC, Session,
+};
 pub use read::{Contents, ReadError, read_recording};
-pub use recorder::{CHUNK_FRAMES, CHUNK_INTERVAL, Record, RecordHandle, Recorder, RecorderStats};
+pub use recorder::{
+    CHUNK_FRAMES, CHUNK_INTERVAL, Record, RecordHandle, Recorder, RecorderStats, Sinks,
+};
+pub use rerun_log::{LiveStream, RerunLog};
+pub use visual::{Mesh, SurfaceFrame, SurfaceState, ToolLook, ToolShape};

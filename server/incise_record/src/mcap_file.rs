@@ -1,5 +1,7 @@
 //! One session's MCAP file: its schemas, channels, metadata and attachment, then the messages.
 
+use crate::foxglove;
+use crate::visual::{SurfaceFrame, SurfaceState, ToolLook};
 use incise_protocol::v1;
 use prost::Message;
 use std::collections::BTreeMap;
@@ -11,6 +13,16 @@ use std::path::{Path, PathBuf};
 pub const FRAME_TOPIC: &str = "/incise/frame";
 /// The topic of every `incise.v1.CutEvent`.
 pub const CUT_TOPIC: &str = "/incise/cut";
+/// The topic of the organ's surface, `incise.v1.SurfaceMesh`: whole on the first frame and once a
+/// second; in between, every vertex's position at the geometry rate, and each topology change
+/// (new triangles and vertices, freed ids) on the frame that made it.
+pub const SURFACE_TOPIC: &str = "/incise/surface";
+/// The topic of the scene in Foxglove's schema (`foxglove.SceneUpdate`): the organ and the
+/// tools with their force arrows.
+pub const SCENE_TOPIC: &str = "/foxglove/scene";
+/// The topic prefix of each tool's pose in Foxglove's schema (`foxglove.PoseInFrame`):
+/// `/foxglove/tools/<name>/pose`.
+pub const POSE_TOPIC_PREFIX: &str = "/foxglove/tools/";
 
 /// What went wrong writing a recording, and to which file.
 #[derive(Debug, thiserror::Error)]
@@ -33,6 +45,11 @@ pub struct Session {
     pub version: String,
     /// The git revision it was built from (empty when unknown).
     pub git_revision: String,
+    /// How each of the scene's tools is drawn, in scene order.
+    pub tools: Vec<ToolLook>,
+    /// Simulated time between two Foxglove scene updates (s); each repeats the whole surface,
+    /// so they are sparser than the surface frames.
+    pub scene_interval_s: f64,
 }
 
 impl Session {
@@ -51,6 +68,15 @@ pub struct McapRecording {
     writer: mcap::Writer<BufWriter<File>>,
     frame_channel: u16,
     cut_channel: u16,
+    surface_channel: u16,
+    scene_channel: u16,
+    pose_channels: Vec<u16>,
+    tools: Vec<ToolLook>,
+    scene_interval_s: f64,
+    /// When the last scene update was written (simulated s).
+    last_scene_s: Option<f64>,
+    /// The surface as the surface frames so far describe it.
+    surface: SurfaceState,
     sequence: u32,
     frames: u64,
 }
@@ -71,6 +97,7 @@ impl McapRecording {
             .map_err(|e| err(format!("cannot start the MCAP file: {e}")))?;
         let mcap = |e: mcap::McapError| err(format!("cannot write: {e}"));
         let mut channel = |message: &str, topic: &str| -> Result<u16, RecordError> {
+            // The same schema added twice is stored once.
             let schema = writer
                 .add_schema(message, "protobuf", incise_protocol::DESCRIPTOR_SET)
                 .map_err(mcap)?;
@@ -78,6 +105,15 @@ impl McapRecording {
         };
         let frame_channel = channel("incise.v1.FrameRecord", FRAME_TOPIC)?;
         let cut_channel = channel("incise.v1.CutEvent", CUT_TOPIC)?;
+        let surface_channel = channel("incise.v1.SurfaceMesh", SURFACE_TOPIC)?;
+        let scene_channel = channel("foxglove.SceneUpdate", SCENE_TOPIC)?;
+        let pose_channels = session
+            .tools
+            .iter()
+            .map(|t| {
+                channel("foxglove.PoseInFrame", &format!("{POSE_TOPIC_PREFIX}{}/pose", t.name))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         let metadata = BTreeMap::from([
             ("incise_version".to_owned(), session.version.clone()),
             ("git_revision".to_owned(), session.git_revision.clone()),
@@ -102,6 +138,13 @@ impl McapRecording {
             writer,
             frame_channel,
             cut_channel,
+            surface_channel,
+            scene_channel,
+            pose_channels,
+            tools: session.tools.clone(),
+            scene_interval_s: session.scene_interval_s,
+            last_scene_s: None,
+            surface: SurfaceState::default(),
             sequence: 0,
             frames: 0,
         })
@@ -136,10 +179,36 @@ impl McapRecording {
         RecordError { path: self.path.clone(), what: format!("cannot write: {e}") }
     }
 
-    /// Writes a frame's record.
+    /// Writes a frame's record, and each of its poses as a `foxglove.PoseInFrame`.
     pub fn frame(&mut self, record: &v1::FrameRecord) -> Result<(), RecordError> {
         self.write(self.frame_channel, record.sim_time_s, &record.encode_to_vec())?;
+        for pose in &record.poses {
+            if let Some(&channel) = self.pose_channels.get(pose.tool_id as usize) {
+                let message = foxglove::pose_in_frame(pose, record.sim_time_s);
+                self.write(channel, record.sim_time_s, &message.encode_to_vec())?;
+            }
+        }
         self.frames += 1;
+        Ok(())
+    }
+
+    /// Writes a surface frame, and a Foxglove scene update when one is due (`record`: the
+    /// surface's frame, for the tools).
+    pub fn surface(
+        &mut self,
+        surface: &SurfaceFrame,
+        record: Option<&v1::FrameRecord>,
+    ) -> Result<(), RecordError> {
+        let t = surface.sim_time_s;
+        self.write(self.surface_channel, t, &surface.to_message().encode_to_vec())?;
+        self.surface.apply(surface);
+        // Each update repeats the whole surface, so a topology change waits for the next one.
+        let due = self.last_scene_s.is_none_or(|last| t - last >= self.scene_interval_s - 1e-9);
+        if due {
+            let update = foxglove::scene_update(t, &self.surface.mesh(), &self.tools, record);
+            self.write(self.scene_channel, t, &update.encode_to_vec())?;
+            self.last_scene_s = Some(t);
+        }
         Ok(())
     }
 

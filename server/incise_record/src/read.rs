@@ -3,7 +3,7 @@
 //! a file that is not MCAP, not incise's, or of another protocol version is refused with a
 //! message that says which.
 
-use crate::mcap_file::{CUT_TOPIC, FRAME_TOPIC};
+use crate::mcap_file::{CUT_TOPIC, FRAME_TOPIC, SURFACE_TOPIC};
 use incise_protocol::v1;
 use prost::Message;
 use std::collections::BTreeMap;
@@ -19,6 +19,8 @@ pub struct Contents {
     pub frames: Vec<v1::FrameRecord>,
     /// Every cut, with its log time (simulated ns).
     pub cuts: Vec<(v1::CutEvent, u64)>,
+    /// Every surface frame, with its log time (simulated ns).
+    pub surfaces: Vec<(v1::SurfaceMesh, u64)>,
     /// The scene's TOML, when attached.
     pub scene_toml: Option<String>,
     /// The `incise` metadata record.
@@ -176,6 +178,10 @@ impl Reading {
                         .push(v1::FrameRecord::decode(&*data).map_err(|e| bad(e.to_string()))?),
                     CUT_TOPIC => self.contents.cuts.push((
                         v1::CutEvent::decode(&*data).map_err(|e| bad(e.to_string()))?,
+                        header.log_time,
+                    )),
+                    SURFACE_TOPIC => self.contents.surfaces.push((
+                        v1::SurfaceMesh::decode(&*data).map_err(|e| bad(e.to_string()))?,
                         header.log_time,
                     )),
                     // Channels a later version adds are not ours to refuse.

@@ -1,7 +1,10 @@
 //! The recorder thread: the physics thread hands it every frame over a bounded queue, and it
-//! writes them to the session's MCAP file, closing a chunk on a schedule.
+//! writes them to the session's MCAP file (closing a chunk on a schedule) and `.rrd` file, and
+//! offers them to a live viewer.
 
 use crate::mcap_file::{McapRecording, RecordError};
+use crate::rerun_log::{LiveItem, LiveStream, RerunLog};
+use crate::visual::SurfaceFrame;
 use incise_protocol::v1;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -29,6 +32,19 @@ pub enum Record {
     Frame(v1::FrameRecord),
     /// A cut, made at simulated time `.1`.
     Cut(v1::CutEvent, f64),
+    /// The organ's surface at a frame (after that frame's record).
+    Surface(SurfaceFrame),
+}
+
+/// Where the recorder writes: any of an MCAP file, an `.rrd` file and a live viewer.
+#[derive(Default)]
+pub struct Sinks {
+    /// The session's MCAP file.
+    pub mcap: Option<McapRecording>,
+    /// The session's `.rrd` file.
+    pub rrd: Option<RerunLog>,
+    /// A live Rerun viewer.
+    pub live: Option<LiveStream>,
 }
 
 /// What the recorder counts.
@@ -38,6 +54,12 @@ pub struct RecorderStats {
     pub frames: AtomicU64,
     /// Times the physics found the queue full and waited.
     pub waits: AtomicU64,
+    /// Surface frames written.
+    pub surfaces: AtomicU64,
+    /// Surface frames the live viewer was too slow for (dropped from the live stream only).
+    pub live_dropped_geometry: AtomicU64,
+    /// Frame records and cuts dropped from the live stream (its queue was full).
+    pub live_dropped_frames: AtomicU64,
     /// Records that could not be handed over because the recorder had stopped (a write error).
     pub lost: AtomicU64,
     /// Chunks closed.
@@ -86,14 +108,19 @@ pub struct Recorder {
 impl Recorder {
     /// Starts the thread (`incise-record`) that writes `recording`.
     pub fn start(recording: McapRecording) -> std::io::Result<Self> {
+        Self::with_sinks(Sinks { mcap: Some(recording), ..Sinks::default() })
+    }
+
+    /// Starts the thread (`incise-record`) that writes to `sinks`.
+    pub fn with_sinks(sinks: Sinks) -> std::io::Result<Self> {
         let (tx, rx) = mpsc::sync_channel(QUEUE);
         let stats = Arc::new(RecorderStats::default());
-        let path = recording.path().to_owned();
+        let path = sinks.mcap.as_ref().map(|m| m.path().to_owned()).unwrap_or_default();
         let thread = {
             let stats = Arc::clone(&stats);
             std::thread::Builder::new()
                 .name("incise-record".into())
-                .spawn(move || write_all(recording, &rx, &stats))?
+                .spawn(move || write_all(sinks, &rx, &stats))?
         };
         Ok(Self {
             handle: Some(RecordHandle { tx, stats: Arc::clone(&stats) }),
@@ -142,12 +169,14 @@ impl Recorder {
 /// The thread: writes every record, closing a chunk every [`CHUNK_FRAMES`] frames or
 /// [`CHUNK_INTERVAL`]; on a write error it stops (the session goes on unrecorded).
 fn write_all(
-    mut recording: McapRecording,
+    mut sinks: Sinks,
     rx: &mpsc::Receiver<Record>,
     stats: &RecorderStats,
 ) -> Result<u64, RecordError> {
     let mut chunk_started = Instant::now();
     let mut chunk_frames = 0u64;
+    // The last frame's record: the tools of the surface frame that follows it.
+    let mut last: Option<Arc<v1::FrameRecord>> = None;
     let result = (|| loop {
         let first = match rx.recv_timeout(CHUNK_INTERVAL) {
             Ok(r) => Some(r),
@@ -160,26 +189,79 @@ fn write_all(
         for record in first.into_iter().chain(std::iter::from_fn(|| rx.try_recv().ok())) {
             match record {
                 Record::Frame(f) => {
-                    recording.frame(&f)?;
+                    let f = Arc::new(f);
+                    if let Some(mcap) = &mut sinks.mcap {
+                        mcap.frame(&f)?;
+                    }
+                    if let Some(rrd) = &mut sinks.rrd {
+                        rrd.frame(&f);
+                    }
+                    if let Some(live) = &sinks.live {
+                        live.offer(LiveItem::Frame(Arc::clone(&f)));
+                    }
+                    last = Some(f);
                     chunk_frames += 1;
                     stats.frames.fetch_add(1, Ordering::Relaxed);
                 }
-                Record::Cut(c, t) => recording.cut(&c, t)?,
+                Record::Cut(c, t) => {
+                    if let Some(mcap) = &mut sinks.mcap {
+                        mcap.cut(&c, t)?;
+                    }
+                    if let Some(rrd) = &mut sinks.rrd {
+                        rrd.cut(&c, t);
+                    }
+                    if let Some(live) = &sinks.live {
+                        live.offer(LiveItem::Cut(c, t));
+                    }
+                }
+                Record::Surface(surface) => {
+                    let record = last.as_ref().filter(|r| r.frame == surface.frame);
+                    if let Some(mcap) = &mut sinks.mcap {
+                        mcap.surface(&surface, record.map(|r| &**r))?;
+                    }
+                    if let Some(rrd) = &mut sinks.rrd {
+                        rrd.surface(&surface, record.map(|r| &**r));
+                    }
+                    if let Some(live) = &sinks.live {
+                        live.offer(LiveItem::Surface(Arc::new(surface), record.cloned()));
+                        let s = live.stats();
+                        stats
+                            .live_dropped_geometry
+                            .store(s.dropped_geometry.load(Ordering::Relaxed), Ordering::Relaxed);
+                        stats
+                            .live_dropped_frames
+                            .store(s.dropped_frames.load(Ordering::Relaxed), Ordering::Relaxed);
+                    }
+                    stats.surfaces.fetch_add(1, Ordering::Relaxed);
+                }
             }
         }
         if chunk_frames >= CHUNK_FRAMES
             || (chunk_frames > 0 && chunk_started.elapsed() >= CHUNK_INTERVAL)
         {
-            recording.close_chunk()?;
+            if let Some(mcap) = &mut sinks.mcap {
+                mcap.close_chunk()?;
+            }
             stats.chunks.fetch_add(1, Ordering::Relaxed);
             chunk_frames = 0;
             chunk_started = Instant::now();
         }
         std::thread::sleep(PAUSE);
     })();
+    if let Some(live) = sinks.live.take() {
+        live.finish();
+    }
+    if let Some(rrd) = sinks.rrd.take()
+        && let Err(e) = rrd.finish()
+    {
+        tracing::warn!("the Rerun recording: {e}");
+    }
     if let Err(e) = result {
         stats.failed.store(true, Ordering::Release);
         return Err(e);
     }
-    recording.finish()
+    match sinks.mcap {
+        Some(mcap) => mcap.finish(),
+        None => Ok(stats.frames.load(Ordering::Relaxed)),
+    }
 }

@@ -15,6 +15,8 @@ fn session() -> Session {
         scene_toml: "name = \"test_scene\"\n[volume]\nprocedural = \"organ\"\n".into(),
         version: "0.1.0".into(),
         git_revision: "abc123".into(),
+        tools: Vec::new(),
+        scene_interval_s: 0.1,
     }
 }
 

@@ -3,6 +3,10 @@
 //! each frame's state hash and tool forces are compared with the recorded ones. On the machine
 //! and build that recorded it, a replay matches bit for bit; elsewhere, `tolerance` compares the
 //! forces within bounds instead (the state hash then cannot match and is not compared).
+//!
+//! [`render`] turns a recording into an `.rrd` file for the Rerun viewer from what it holds
+//! (frames, cuts, the surface), without stepping anything: a frame range starts at the whole
+//! surface (keyframe) at or before it.
 
 use incise_protocol::raw::RawToolPose;
 use incise_protocol::v1;
@@ -17,6 +21,11 @@ pub struct Compare {
     /// `None`: bit for bit (state hash and forces). `Some(t)`: forces and torques within `t`
     /// (N, N·m), state hash not compared.
     pub tolerance: Option<f64>,
+    /// Compare from this frame on (the frames before it are stepped, not compared: the
+    /// recording holds the state only as each frame's hash, so a replay starts at frame 1).
+    pub from: Option<u64>,
+    /// Stop after this frame.
+    pub to: Option<u64>,
 }
 
 /// Where a replay first left the recording.
@@ -61,7 +70,8 @@ pub fn replay(
 ) -> Outcome {
     let started = Instant::now();
     let mut frames = 0;
-    for record in &contents.frames {
+    let to = compare.to.unwrap_or(u64::MAX);
+    for record in contents.frames.iter().take_while(|r| r.frame <= to) {
         let tools = record
             .poses
             .iter()
@@ -79,6 +89,10 @@ pub fn replay(
             Err(e) => return diverged(frames, format!("step: {e}"), 0.0),
         };
         frames += 1;
+        if record.frame < compare.from.unwrap_or(0) {
+            progress(frames);
+            continue;
+        }
         if frame.index != record.frame {
             let what = format!("frame index {} (recorded {})", frame.index, record.frame);
             return diverged(frames, what, 0.0);
@@ -128,4 +142,43 @@ fn compare_tools(
         }
     }
     None
+}
+
+/// Writes `contents`' frames in `from..=to` to `rrd`: every frame's time series and cuts, and
+/// the recorded surfaces, starting at the last whole surface at or before `from` (the view a
+/// seek shows); `tools` draws the tools. The frames written.
+pub fn render(
+    contents: &Contents,
+    from: u64,
+    to: u64,
+    rrd: &mut incise_record::RerunLog,
+) -> anyhow::Result<u64> {
+    use incise_record::SurfaceFrame;
+    let start = contents
+        .surfaces
+        .iter()
+        .filter(|(s, _)| s.full && s.frame <= from.max(1))
+        .map(|(s, _)| s.frame)
+        .next_back()
+        .unwrap_or(0);
+    let mut surfaces = contents.surfaces.iter().filter(|(s, _)| s.frame >= start).peekable();
+    let mut cuts = contents.cuts.iter().peekable();
+    let mut written = 0;
+    for record in contents.frames.iter().filter(|r| r.frame >= start.min(from) && r.frame <= to) {
+        if record.frame >= from {
+            rrd.frame(record);
+            written += 1;
+        }
+        while let Some((cut, t)) = cuts.next_if(|(c, _)| c.frame <= record.frame) {
+            if cut.frame >= from {
+                rrd.cut(cut, *t as f64 * 1e-9);
+            }
+        }
+        while let Some((surface, t)) = surfaces.next_if(|(s, _)| s.frame <= record.frame) {
+            let surface = SurfaceFrame::from_message(surface, *t as f64 * 1e-9)
+                .map_err(|e| anyhow::anyhow!("the recorded surface: {e}"))?;
+            rrd.surface(&surface, (surface.frame == record.frame).then_some(record));
+        }
+    }
+    Ok(written)
 }

@@ -34,6 +34,8 @@ fn rewrite(
         scene_toml: contents.scene_toml.clone().unwrap(),
         version: "test".into(),
         git_revision: String::new(),
+        tools: Vec::new(),
+        scene_interval_s: 0.1,
     };
     let mut recording = McapRecording::create(path, &session).unwrap();
     for f in &contents.frames {

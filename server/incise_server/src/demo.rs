@@ -193,6 +193,10 @@ pub fn summary(
         jitter.quantile_us(0.99).unwrap_or(0.0),
         jitter.max_us(),
     );
+    if let (Some(start), Some(now)) = running.memory_mb() {
+        let _ =
+            writeln!(out, "memory: {start:.1} MB resident once started, {now:.1} MB at the end");
+    }
     for c in reports {
         let r = &c.report;
         let _ = writeln!(out, "{} over {}: {r}", c.tool, c.transport);

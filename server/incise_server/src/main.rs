@@ -47,11 +47,20 @@ struct Cli {
     #[arg(long, default_value_t = 6.0, requires = "demo")]
     duration: f64,
     /// Record the session into DIR: `<scene>-<unix seconds>.mcap`, every physics frame (the tool
-    /// poses it used, the tools' forces, a hash of the state, its statistics), the cuts and the
-    /// scene, readable by any MCAP tool. The demo records into `incise-recordings` unless
-    /// `--no-record`.
+    /// poses it used, the tools' forces, a hash of the state, its statistics), the cuts, the
+    /// organ's surface and the scene, readable by any MCAP tool (Foxglove draws it); and its
+    /// twin `<scene>-<unix seconds>.rrd` for the Rerun viewer. The demo records into
+    /// `incise-recordings` unless `--no-record`.
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
+    /// Also stream the session live to a Rerun viewer, e.g. `rerun+http://127.0.0.1:9876/proxy`
+    /// (start one with `rerun`). A slow viewer is sent fewer surfaces, never slows the physics.
+    #[arg(long, value_name = "URL")]
+    rerun_connect: Option<String>,
+    /// How often a recording or live stream takes the organ's surface (Hz of simulated time);
+    /// frames whose surface changed are always taken. Scalars are taken every frame.
+    #[arg(long, value_name = "HZ", default_value_t = incise_server::physics::DEFAULT_GEOMETRY_HZ)]
+    geometry_hz: f64,
     /// The demo does not record.
     #[arg(long, requires = "demo", conflicts_with = "record")]
     no_record: bool,
@@ -66,6 +75,11 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
+    anyhow::ensure!(
+        cli.geometry_hz.is_finite() && cli.geometry_hz >= 0.0,
+        "--geometry-hz must be a rate of 0 Hz or more, not {}",
+        cli.geometry_hz
+    );
     anyhow::ensure!(
         cli.max_force.is_finite() && cli.max_force > 0.0,
         "--max-force must be a positive number of newtons, not {}",
@@ -84,6 +98,8 @@ fn main() -> anyhow::Result<()> {
             (None, true) => Some(PathBuf::from("incise-recordings")),
             (None, false) => None,
         },
+        rerun_connect: cli.rerun_connect.clone(),
+        geometry_hz: cli.geometry_hz,
         scene_toml: match &cli.scene {
             Some(path) => std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read the scene {}", path.display()))?,
@@ -106,7 +122,9 @@ fn main() -> anyhow::Result<()> {
         let recording = running.recording().map(|p| p.display().to_string());
         running.stop();
         if let Some(path) = recording {
+            let rrd = std::path::Path::new(&path).with_extension("rrd");
             println!("recording: {path} (open it with any MCAP tool, e.g. `mcap info {path}`)");
+            println!("           {} (open it with `rerun {0}`)", rrd.display());
         }
         return Ok(());
     }

@@ -7,9 +7,10 @@ use incise_haptics::{LoopShared, ToolSnapshot};
 use incise_protocol::check::check_pose;
 use incise_protocol::raw::RawToolPose;
 use incise_protocol::v1::{self, ForceFlag};
-use incise_record::{Record, RecordHandle};
-use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
-use incise_tool::ToolPose;
+use incise_record::{Record, RecordHandle, SurfaceFrame, ToolLook, ToolShape};
+use incise_sim::config::ShapeSpec;
+use incise_sim::{Frame, SceneConfig, Simulation, StepInputs, ToolInput};
+use incise_tool::{Primitive, ToolPose};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -35,15 +36,17 @@ pub struct PhysicsStats {
 /// The most tools whose force the statistics keep.
 const TRACKED: usize = 8;
 
-/// Steps `sim` every `dt` of wall time until `stop`.
+/// Steps `sim` every `dt` of wall time until `stop`; when recording, hands the recorder every
+/// frame and the surface at `geometry`'s times.
 pub fn run(
     mut sim: Simulation,
     shared: &LoopShared,
     outbox: &Outbox,
-    recorder: Option<&RecordHandle>,
+    recorder: Option<(&RecordHandle, GeometryClock)>,
     stats: &PhysicsStats,
     stop: &AtomicBool,
 ) {
+    let (recorder, mut geometry) = recorder.unzip();
     let dt = Duration::from_secs_f64(sim.config().dt());
     let tools = shared.tools();
     let mut next = Instant::now();
@@ -70,16 +73,15 @@ pub fn run(
                 if let Some(recorder) = recorder {
                     let record = frame_record(&frame, &used, frame_stats);
                     recorder.record(Record::Frame(record));
+                    if let Some(surface) =
+                        geometry.as_mut().and_then(|clock| clock.surface(&sim, &frame))
+                    {
+                        recorder.record(Record::Surface(surface));
+                    }
                 }
                 outbox.post(Outgoing::Frame(frame_stats));
                 for cut in &frame.surgical.cuts {
-                    let cut = v1::CutEvent {
-                        frame: frame.index,
-                        tool_id: cut.tool as u32,
-                        voxels_removed: cut.voxels_removed as u32,
-                        links_severed: cut.links_severed as u32,
-                        tets_removed: cut.tets_removed as u32,
-                    };
+                    let cut = cut_event(&frame, cut);
                     if let Some(recorder) = recorder {
                         recorder.record(Record::Cut(cut, frame.time));
                     }
@@ -108,6 +110,122 @@ pub fn run(
             }
         }
     }
+}
+
+/// Simulated time between two whole surfaces in a recording (s): where a viewer seeking to a
+/// time finds the topology.
+pub const KEYFRAME_INTERVAL_S: f64 = 1.0;
+
+/// The default rate at which a recording takes the organ's surface (Hz of simulated time).
+pub const DEFAULT_GEOMETRY_HZ: f64 = 60.0;
+
+/// When a recording takes the organ's surface: whole on the first frame and once a
+/// [`KEYFRAME_INTERVAL_S`]; every vertex's position at a rate of simulated time; and each
+/// topology change on the frame that made it (its new triangles and vertices, the freed ids).
+#[derive(Clone, Debug)]
+pub struct GeometryClock {
+    /// Simulated seconds between two takes of every position.
+    interval: f64,
+    /// When the next take of every position, and the next keyframe, are due (simulated s).
+    next_positions: f64,
+    next_keyframe: f64,
+}
+
+impl GeometryClock {
+    /// A clock taking every vertex's position `hz` times a second of simulated time (0: only
+    /// on keyframes; topology changes are taken all the same).
+    #[must_use]
+    pub fn new(hz: f64) -> Self {
+        let interval = if hz > 0.0 { 1.0 / hz } else { f64::INFINITY };
+        Self { interval, next_positions: 0.0, next_keyframe: 0.0 }
+    }
+
+    /// The surface frame after `frame`, when one is due.
+    pub fn surface(&mut self, sim: &Simulation, frame: &Frame) -> Option<SurfaceFrame> {
+        // A microsecond's slack keeps float round-off from slipping a tick by a frame.
+        let t = frame.time + 1e-6;
+        let changes = &frame.surgical.surface;
+        let keyframe = t >= self.next_keyframe;
+        let tick = t >= self.next_positions;
+        if !(keyframe || tick || !changes.is_empty()) {
+            return None;
+        }
+        if keyframe {
+            self.next_keyframe = (self.next_keyframe + KEYFRAME_INTERVAL_S).max(frame.time);
+        }
+        if tick && self.interval.is_finite() {
+            self.next_positions = (self.next_positions + self.interval).max(frame.time);
+        }
+        let g = if keyframe {
+            sim.surface_geometry(None, None)?
+        } else {
+            // Every position on a tick; the new vertices' alone on a change between ticks.
+            let vertices = (!tick).then_some(&changes.vertices_added[..]);
+            sim.surface_geometry(vertices, Some(&changes.triangles_added))?
+        };
+        let triangles = g
+            .triangle_ids
+            .iter()
+            .zip(&g.triangles)
+            .zip(&g.triangle_labels)
+            .map(|((&id, &t), &l)| (id, t, l))
+            .collect();
+        Some(SurfaceFrame {
+            frame: frame.index,
+            sim_time_s: frame.time,
+            whole: keyframe,
+            vertex_ids: g.vertex_ids,
+            positions: g.positions,
+            triangles,
+            removed_triangles: if keyframe {
+                Vec::new()
+            } else {
+                changes.triangles_removed.clone()
+            },
+            removed_vertices: if keyframe { Vec::new() } else { changes.vertices_removed.clone() },
+        })
+    }
+}
+
+/// How each of the scene's tools is drawn in a recording: its outer shape (a mesh file's tool
+/// as its bounding box).
+#[must_use]
+pub fn tool_looks(config: &SceneConfig) -> Vec<ToolLook> {
+    config
+        .tools
+        .iter()
+        .map(|t| {
+            let shape = match &t.outer {
+                ShapeSpec::Shape(shape) => match shape.primitive() {
+                    Some(Primitive::Sphere { radius }) => {
+                        let (lo, hi) = shape.bounds();
+                        ToolShape::Sphere {
+                            centre: std::array::from_fn(|i| f64::midpoint(lo[i], hi[i])),
+                            radius,
+                        }
+                    }
+                    Some(Primitive::Capsule { radius, length }) => {
+                        let (lo, _) = shape.bounds();
+                        ToolShape::Capsule {
+                            start: [lo[0] + radius, lo[1] + radius, lo[2] + radius],
+                            radius,
+                            length,
+                        }
+                    }
+                    _ => {
+                        let (min, max) = shape.bounds();
+                        ToolShape::Box { min, max }
+                    }
+                },
+                // Read by the scene reader before a simulation is built; a unit box stands in.
+                ShapeSpec::Mesh { offset, .. } => ToolShape::Box {
+                    min: offset.map(|c| c - 0.005),
+                    max: offset.map(|c| c + 0.005),
+                },
+            };
+            ToolLook { name: t.name.clone(), shape }
+        })
+        .collect()
 }
 
 /// Each tool's newest usable pose (an unusable one is left to the haptic loop to count), and
@@ -158,6 +276,18 @@ pub fn frame_record(frame: &Frame, used: &[RawToolPose], stats: v1::FrameStats) 
         tools,
         state_hash: frame.state_hash,
         stats: Some(stats),
+    }
+}
+
+/// A cut `frame` made, as its message.
+#[must_use]
+pub fn cut_event(frame: &Frame, cut: &incise_sim::CutEvent) -> v1::CutEvent {
+    v1::CutEvent {
+        frame: frame.index,
+        tool_id: cut.tool as u32,
+        voxels_removed: cut.voxels_removed as u32,
+        links_severed: cut.links_severed as u32,
+        tets_removed: cut.tets_removed as u32,
     }
 }
 

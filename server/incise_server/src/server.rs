@@ -7,7 +7,7 @@ use anyhow::Context;
 use incise_haptics::{HapticLoop, HapticSettings, LoopIo, LoopShared};
 use incise_protocol::keys::Keys;
 use incise_protocol::v1;
-use incise_record::{McapRecording, Recorder, Session};
+use incise_record::{LiveStream, McapRecording, Recorder, RerunLog, Session, Sinks};
 use incise_scene::Scene;
 use incise_sim::Simulation;
 use incise_sim::config::Cutting;
@@ -29,8 +29,12 @@ pub struct Options {
     pub iceoryx2: bool,
     /// The haptic loop's limits.
     pub haptics: HapticSettings,
-    /// Record the session into this folder (`<scene>-<unix seconds>.mcap`).
+    /// Record the session into this folder (`<scene>-<unix seconds>.mcap` and `.rrd`).
     pub record: Option<PathBuf>,
+    /// Also stream the session live to the Rerun viewer at this URL.
+    pub rerun_connect: Option<String>,
+    /// How often a recording takes the organ's surface (Hz of simulated time).
+    pub geometry_hz: f64,
     /// The scene file's text, stored in a recording (so it replays on its own).
     pub scene_toml: String,
 }
@@ -42,6 +46,8 @@ impl Default for Options {
             iceoryx2: true,
             haptics: HapticSettings::default(),
             record: None,
+            rerun_connect: None,
+            geometry_hz: physics::DEFAULT_GEOMETRY_HZ,
             scene_toml: crate::scene::DEMO_SCENE.to_owned(),
         }
     }
@@ -65,6 +71,8 @@ pub struct Running {
     network: Network,
     recorder: Option<Recorder>,
     started: std::time::Instant,
+    /// Resident memory once running (MB).
+    rss_at_start_mb: Option<f64>,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
     zenoh_sender: Option<Thread>,
@@ -157,10 +165,7 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     let stop = Arc::new(AtomicBool::new(false));
     let physics_stats = Arc::new(PhysicsStats::default());
     let dt = config.dt();
-    let recorder = match &options.record {
-        Some(dir) => Some(start_recorder(dir, keys.scene(), &options.scene_toml)?),
-        None => None,
-    };
+    let recorder = start_recorder(options, keys.scene(), &physics::tool_looks(config))?;
     let network =
         Network::start(Arc::clone(&transports)).context("cannot start the network runtime")?;
     let mut threads = Vec::new();
@@ -234,10 +239,12 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     });
     threads.push({
         let record = recorder.as_ref().map(Recorder::handle);
+        let clock = physics::GeometryClock::new(options.geometry_hz);
         let (shared, outbox, stats, stop) =
             (Arc::clone(&shared), network.outbox(), Arc::clone(&physics_stats), Arc::clone(&stop));
         std::thread::Builder::new().name("incise-physics".into()).spawn(move || {
-            physics::run(sim, &shared, &outbox, record.as_ref(), &stats, &stop);
+            let recording = record.as_ref().map(|r| (r, clock));
+            physics::run(sim, &shared, &outbox, recording, &stats, &stop);
         })?
     });
     Ok(Running {
@@ -251,6 +258,7 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         network,
         recorder,
         started: std::time::Instant::now(),
+        rss_at_start_mb: resident_mb(),
         stop,
         threads,
         zenoh_sender,
@@ -272,20 +280,33 @@ impl Running {
         drop(self.transports);
         if let Some(recorder) = self.recorder {
             let path = recorder.path().display().to_string();
-            let waits = recorder.stats().waits.load(Ordering::Relaxed);
+            let stats = recorder.stats();
+            let waits = stats.waits.load(Ordering::Relaxed);
+            let surfaces = stats.surfaces.load(Ordering::Relaxed);
+            let live_dropped = stats.live_dropped_geometry.load(Ordering::Relaxed);
             match recorder.finish() {
+                Ok(frames) if path.is_empty() => tracing::info!(
+                    "streamed {frames} frames and {surfaces} surfaces live ({live_dropped} surfaces dropped: the viewer was behind)"
+                ),
                 Ok(frames) => tracing::info!(
-                    "recorded {frames} frames to {path} (the physics waited for the recorder {waits} times)"
+                    "recorded {frames} frames and {surfaces} surfaces to {path} and its .rrd (the physics waited for the recorder {waits} times)"
                 ),
                 Err(e) => tracing::error!("the recording is incomplete: {e}"),
             }
         }
     }
 
-    /// The recording's file, when recording.
+    /// The recording's MCAP file, when recording (its `.rrd` twin has the same stem).
     #[must_use]
     pub fn recording(&self) -> Option<&Path> {
-        self.recorder.as_ref().map(Recorder::path)
+        self.recorder.as_ref().map(Recorder::path).filter(|p| !p.as_os_str().is_empty())
+    }
+
+    /// Resident memory (MB) once the server had started, and now: a long session's memory
+    /// should stay flat.
+    #[must_use]
+    pub fn memory_mb(&self) -> (Option<f64>, Option<f64>) {
+        (self.rss_at_start_mb, resident_mb())
     }
 
     /// How long the server has run.
@@ -328,7 +349,16 @@ impl Running {
             Some(r) => {
                 let s = r.stats();
                 let failed = if s.failed.load(Ordering::Relaxed) { ", FAILED" } else { "" };
-                format!(" | recorded {} frames ({} waits{failed})", get(&s.frames), get(&s.waits))
+                let live = match get(&s.live_dropped_geometry) {
+                    0 => String::new(),
+                    n => format!(", live viewer behind: {n} surfaces dropped"),
+                };
+                format!(
+                    " | recorded {} frames, {} surfaces ({} waits{failed}{live})",
+                    get(&s.frames),
+                    get(&s.surfaces),
+                    get(&s.waits)
+                )
             }
             None => String::new(),
         };
@@ -349,22 +379,54 @@ impl Running {
     }
 }
 
-/// Creates `dir` and starts recording the session into `<scene>-<unix seconds>.mcap` there.
-fn start_recorder(dir: &Path, scene: &str, scene_toml: &str) -> anyhow::Result<Recorder> {
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("--record {}: cannot create the folder", dir.display()))?;
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    let path = dir.join(format!("{scene}-{secs}.mcap"));
-    let session = Session {
-        scene: scene.to_owned(),
-        scene_toml: scene_toml.to_owned(),
-        version: env!("CARGO_PKG_VERSION").into(),
-        git_revision: option_env!("INCISE_GIT_REVISION").unwrap_or("").into(),
-    };
-    let recording = McapRecording::create(&path, &session)?;
-    Ok(Recorder::start(recording)?)
+/// This process's resident memory (MB), from `/proc/self/statm` (`None` where there is none).
+#[must_use]
+pub fn resident_mb() -> Option<f64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: f64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    // Linux's page size on every platform incise targets.
+    Some(pages * 4096.0 / 1e6)
+}
+
+/// The simulated time between two Foxglove scene updates in a recording (s).
+const SCENE_INTERVAL_S: f64 = 0.1;
+
+/// Starts the recorder when the session is recorded (`--record DIR`: creates DIR and writes
+/// `<scene>-<unix seconds>.mcap` and `.rrd` there) or streamed (`--rerun-connect URL`).
+fn start_recorder(
+    options: &Options,
+    scene: &str,
+    tools: &[incise_record::ToolLook],
+) -> anyhow::Result<Option<Recorder>> {
+    let mut sinks = Sinks::default();
+    if let Some(dir) = &options.record {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--record {}: cannot create the folder", dir.display()))?;
+        let secs = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        let path = dir.join(format!("{scene}-{secs}.mcap"));
+        let session = Session {
+            scene: scene.to_owned(),
+            scene_toml: options.scene_toml.clone(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            git_revision: option_env!("INCISE_GIT_REVISION").unwrap_or("").into(),
+            tools: tools.to_vec(),
+            scene_interval_s: SCENE_INTERVAL_S,
+        };
+        sinks.mcap = Some(McapRecording::create(&path, &session)?);
+        sinks.rrd =
+            Some(RerunLog::save(&path.with_extension("rrd"), tools).map_err(anyhow::Error::msg)?);
+    }
+    if let Some(url) = &options.rerun_connect {
+        let log =
+            RerunLog::connect(url, tools).map_err(anyhow::Error::msg).context("--rerun-connect")?;
+        sinks.live = Some(LiveStream::start(log)?);
+    }
+    if sinks.mcap.is_none() && sinks.live.is_none() {
+        return Ok(None);
+    }
+    Ok(Some(Recorder::with_sinks(sinks)?))
 }
 
 /// What the `…/info` queryable answers.

@@ -42,10 +42,14 @@ fn the_demo_presses_cuts_grasps_and_reports() {
     assert!(number_after(viewer, "),") > 0.0, "no cut event: {viewer}");
     assert!(summary.contains("faults: none"), "{summary}");
 
-    // The recording: one file, every frame in order with the poses it used and a state hash,
-    // the cuts the viewer saw, the scene that replays it.
-    let files: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).collect();
-    assert_eq!(files.len(), 1, "{files:?}");
+    // The recording: an MCAP file and its `.rrd` twin; in the MCAP file every frame in order
+    // with the poses it used and a state hash, the cuts the viewer saw, the surface, the scene
+    // that replays it.
+    let mut files: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).collect();
+    files.sort();
+    assert_eq!(files.len(), 2, "{files:?}");
+    assert_eq!(files[0].extension().unwrap(), "mcap");
+    assert_eq!(files[1], files[0].with_extension("rrd"));
     assert!(summary.contains(&*files[0].display().to_string()), "the summary names the file");
     let contents = incise_record::read_recording(&std::fs::read(&files[0]).unwrap()).unwrap();
     assert!(contents.truncated.is_none());
@@ -64,6 +68,40 @@ fn the_demo_presses_cuts_grasps_and_reports() {
         "{voxels} voxels in the cut events, {removed} removed"
     );
     assert_eq!(contents.scene_toml.as_deref(), Some(incise_server::scene::DEMO_SCENE));
+    // The surface: at least the default 60 Hz of simulated time, whole on the first frame and
+    // once a second, and every cut's change on the frame that cut. Applied in order, the
+    // changes give each keyframe's triangles exactly (incremental equals whole).
+    let surfaces = &contents.surfaces;
+    let sim_s = contents.frames.last().unwrap().sim_time_s;
+    assert!(
+        surfaces.len() as f64 >= 60.0 * sim_s * 0.95,
+        "{} surfaces in {sim_s} s",
+        surfaces.len()
+    );
+    assert!(surfaces[0].0.full && surfaces[0].0.frame == 1);
+    for (cut, _) in &contents.cuts {
+        assert!(
+            surfaces.iter().any(|(s, _)| s.frame == cut.frame
+                && (s.full || !s.triangle_ids.is_empty() || !s.removed_triangle_ids.is_empty())),
+            "frame {} cut and its surface change is not recorded",
+            cut.frame
+        );
+    }
+    let mut state = incise_record::SurfaceState::default();
+    let mut keyframes_checked = 0;
+    for (m, t) in surfaces {
+        let frame = incise_record::SurfaceFrame::from_message(m, *t as f64 * 1e-9).unwrap();
+        if frame.whole && frame.frame > 1 {
+            let mut whole = incise_record::SurfaceState::default();
+            whole.apply(&frame);
+            assert_eq!(state.triangles(), whole.triangles(), "keyframe {}", frame.frame);
+            keyframes_checked += 1;
+        }
+        state.apply(&frame);
+    }
+    assert!(keyframes_checked >= 1);
+    let keyframes = surfaces.iter().filter(|(s, _)| s.full).count();
+    assert!(keyframes as f64 >= sim_s.floor(), "{keyframes} whole surfaces in {sim_s} s");
 
     // MCAP's own Python libraries (nothing of ours) decode every message with the schemas the
     // file embeds.
@@ -82,5 +120,25 @@ fn the_demo_presses_cuts_grasps_and_reports() {
     assert_eq!(j["schemas"]["/incise/frame"], "incise.v1.FrameRecord");
     assert_eq!(j["metadata"]["incise"]["scene"], "demo_organ");
     assert_eq!(j["attachments"][0], "scene.toml");
+    assert_eq!(j["topics"]["/incise/surface"].as_u64(), Some(surfaces.len() as u64));
+    assert_eq!(j["schemas"]["/foxglove/scene"], "foxglove.SceneUpdate");
+    assert!(j["topics"]["/foxglove/scene"].as_u64().unwrap() >= sim_s as u64 * 10);
+    for tool in ["scalpel", "grasper"] {
+        let topic = format!("/foxglove/tools/{tool}/pose");
+        assert_eq!(j["schemas"][&topic], "foxglove.PoseInFrame", "{topic}");
+        assert!(j["topics"][&topic].as_u64().unwrap() > 0, "{topic}");
+    }
+
+    // Rerun's own tool accepts the `.rrd` file.
+    let python = common::python("python-venv-rerun", "tools/rerun-check/requirements.txt");
+    let rerun = python.with_file_name("rerun");
+    // No usage reports leave the machine.
+    let off = Command::new(&rerun).args(["analytics", "disable"]).output().unwrap();
+    assert!(off.status.success(), "{}", String::from_utf8_lossy(&off.stderr));
+    let out = Command::new(&rerun).args(["rrd", "verify"]).arg(&files[1]).output().unwrap();
+    let said =
+        format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    println!("rerun rrd verify: {said}");
+    assert!(out.status.success(), "rerun rrd verify refused {}: {said}", files[1].display());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -49,7 +49,11 @@ fn a_recording_survives_sigkill_up_to_its_last_closed_chunk() {
     }
     server.kill().unwrap();
     server.wait().unwrap();
-    let files: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).collect();
+    let files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
     assert_eq!(files.len(), 1, "{files:?}");
     let bytes = std::fs::read(&files[0]).unwrap();
     let contents = incise_record::read_recording(&bytes).unwrap();

@@ -54,5 +54,5 @@ pub mod simulation;
 pub use config::{SceneConfig, SceneError};
 pub use simulation::{
     CutError, CutEvent, Frame, Geometry, InputError, OrganSurface, Simulation, StageCounters,
-    StepInputs, SurgicalFrame, ToolFrame, ToolInput,
+    StepInputs, SurfaceGeometry, SurgicalFrame, ToolFrame, ToolInput,
 };

@@ -28,7 +28,7 @@ use std::time::Instant;
 
 mod surgery;
 
-pub use surgery::{CutEvent, OrganSurface, SurgicalFrame, ToolFrame, ToolInput};
+pub use surgery::{CutEvent, OrganSurface, SurfaceGeometry, SurgicalFrame, ToolFrame, ToolInput};
 use surgery::{Surgery, ToolSprings};
 
 /// Per-step counters (timings are measurements, not part of the deterministic state).

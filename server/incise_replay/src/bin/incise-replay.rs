@@ -24,9 +24,21 @@ struct Cli {
     #[arg(long, value_name = "DIR")]
     scene_dir: Option<PathBuf>,
     /// End with one line of JSON: `frames`, `matched`, `first_divergence`, `replay_fps`,
-    /// `recorded_fps`.
+    /// `recorded_fps`, `recorded_frames`, `missing_frames`.
     #[arg(long)]
     json: bool,
+    /// First frame to compare (and to render with --to-rrd). The frames before it are still
+    /// stepped: the recording keeps the state only as a hash, so a replay starts at frame 1.
+    #[arg(long, value_name = "FRAME")]
+    from: Option<u64>,
+    /// Last frame to compare (and to render); the replay stops there.
+    #[arg(long, value_name = "FRAME")]
+    to: Option<u64>,
+    /// Render the recording for the Rerun viewer into OUT.rrd instead of replaying it: the
+    /// recorded surfaces, tools, forces, time series and cuts of the frames in --from..--to,
+    /// starting at the whole surface (a keyframe, one a second) at or before --from.
+    #[arg(long, value_name = "OUT.rrd")]
+    to_rrd: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -51,6 +63,41 @@ fn run() -> anyhow::Result<bool> {
     if let Some(why) = &contents.truncated {
         eprintln!("{shown}: {why}; replaying the {} frames before it", contents.frames.len());
     }
+    // Frames are numbered from 1 without gaps: a gap is a frame the recorder lost.
+    let missing: u64 =
+        contents.frames.windows(2).map(|w| w[1].frame.saturating_sub(w[0].frame + 1)).sum::<u64>()
+            + contents.frames.first().map_or(0, |f| f.frame.saturating_sub(1));
+    eprintln!(
+        "{shown}: {} frames, {missing} missing; {} cuts; {} surface frames",
+        contents.frames.len(),
+        contents.cuts.len(),
+        contents.surfaces.len()
+    );
+    if let (Some(from), Some(to)) = (cli.from, cli.to) {
+        anyhow::ensure!(from <= to, "--from {from} is after --to {to}");
+    }
+    if let Some(out) = &cli.to_rrd {
+        let base = cli.scene_dir.clone().or_else(|| cli.recording.parent().map(PathBuf::from));
+        let toml = contents.scene_toml.as_deref().unwrap_or_default();
+        // The tools' shapes come from the scene; a recording without one draws no tools.
+        let tools = incise_scene::scene_from_toml(
+            toml,
+            "<the recording's scene>",
+            &base.unwrap_or_default(),
+        )
+        .map(|s| incise_server::physics::tool_looks(&s.config))
+        .unwrap_or_default();
+        let mut rrd = incise_record::RerunLog::save(out, &tools).map_err(anyhow::Error::msg)?;
+        let written = incise_replay::render(
+            &contents,
+            cli.from.unwrap_or(1),
+            cli.to.unwrap_or(u64::MAX),
+            &mut rrd,
+        )?;
+        rrd.finish().map_err(anyhow::Error::msg)?;
+        println!("{shown}: {written} frames rendered into {}", out.display());
+        return Ok(true);
+    }
     let base = cli
         .scene_dir
         .clone()
@@ -64,7 +111,8 @@ fn run() -> anyhow::Result<bool> {
         )
         .expect("a valid template"),
     );
-    let outcome = replay(&contents, &mut sim, Compare { tolerance: cli.tolerance }, |n| {
+    let compare = Compare { tolerance: cli.tolerance, from: cli.from, to: cli.to };
+    let outcome = replay(&contents, &mut sim, compare, |n| {
         if n % 64 == 0 {
             bar.set_position(n);
         }
@@ -101,6 +149,8 @@ fn run() -> anyhow::Result<bool> {
             "first_divergence": first,
             "replay_fps": fps,
             "recorded_fps": 1.0 / dt,
+            "recorded_frames": contents.frames.len(),
+            "missing_frames": missing,
         });
         println!("{json}");
     }

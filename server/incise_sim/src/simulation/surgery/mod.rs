@@ -29,6 +29,56 @@ use incise_tool::{
 use std::ops::Range;
 use std::time::Instant;
 
+/// The organ's surface, or part of it, for drawing ([`Simulation::surface_geometry`]). Ids are
+/// the surface's slots: stable while the topology is, reused after a cut.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SurfaceGeometry {
+    /// The vertices' ids, ascending.
+    pub vertex_ids: Vec<u32>,
+    /// Their deformed positions (m, grid frame), in `vertex_ids`' order.
+    pub positions: Vec<[f32; 3]>,
+    /// The triangles' ids, ascending.
+    pub triangle_ids: Vec<u32>,
+    /// Their corners as vertex ids, counter-clockwise seen from outside.
+    pub triangles: Vec<[u32; 3]>,
+    /// Each triangle's tissue label: the label of the voxel that owns its first corner (0 on a
+    /// tensor-mass surface, whose triangles carry no label).
+    pub triangle_labels: Vec<u16>,
+}
+
+/// The live triangles among `ids` (every live one when `None`) of `surface`, with their labels
+/// (`grid`: the voxel surface's grid).
+fn surface_triangles(
+    surface: &OrganSurface,
+    grid: Option<&incise_grid::BranchedGrid>,
+    ids: Option<&[u32]>,
+) -> (Vec<u32>, Vec<[u32; 3]>, Vec<u16>) {
+    let slots = surface.triangle_slots();
+    let live = |&id: &u32| slots.get(id as usize).is_some_and(|t| t.alive);
+    let ids: Vec<u32> = match ids {
+        Some(ids) => ids.iter().copied().filter(live).collect(),
+        None => (0..slots.len() as u32).filter(live).collect(),
+    };
+    let corners: Vec<[u32; 3]> = ids.iter().map(|&id| slots[id as usize].v).collect();
+    let labels = match (surface, grid) {
+        (OrganSurface::Voxels { surface, .. }, Some(grid)) => {
+            let by_material: Vec<u16> = grid.materials().map(|(label, _)| label).collect();
+            let vertices = surface.vertices();
+            corners
+                .iter()
+                .map(|t| {
+                    grid.fine()
+                        .material(vertices[t[0] as usize].voxel)
+                        .and_then(|m| by_material.get(usize::from(m)).copied())
+                        .unwrap_or(0)
+                })
+                .collect()
+        }
+        _ => vec![0; corners.len()],
+    };
+    (ids, corners, labels)
+}
+
 /// A pose for one of the scene's tools, for one step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ToolInput {
@@ -494,6 +544,30 @@ impl Simulation {
         let mut out = Vec::new();
         surgery.surface.deform(&self.state.x, self.model(), &mut out);
         Some(out)
+    }
+
+    /// The organ's surface as a viewer or a recording draws it: the deformed positions of the
+    /// live vertices among `vertices`, and the live triangles among `triangles`, with their
+    /// tissue labels (`None`: every live one). `None` in a scene without a surface.
+    #[must_use]
+    pub fn surface_geometry(
+        &self,
+        vertices: Option<&[u32]>,
+        triangles: Option<&[u32]>,
+    ) -> Option<SurfaceGeometry> {
+        let surgery = self.surgery.as_ref()?;
+        let surface = &surgery.surface;
+        let mut slots = Vec::new();
+        surface.deform(&self.state.x, self.model(), &mut slots);
+        let vertex_ids: Vec<u32> = match vertices {
+            Some(ids) => ids.iter().copied().filter(|&v| surface.is_live(v)).collect(),
+            None => surface.live_vertices().to_vec(),
+        };
+        // Rendering precision: f32 holds a micrometre within 16 m of the origin.
+        let positions = vertex_ids.iter().map(|&v| slots[v as usize].map(|c| c as f32)).collect();
+        let (triangle_ids, triangles, triangle_labels) =
+            surface_triangles(surface, self.grid(), triangles);
+        Some(SurfaceGeometry { vertex_ids, positions, triangle_ids, triangles, triangle_labels })
     }
 
     /// After a cut made from outside the tools (`Simulation::cut`, `Simulation::remove_tets`):

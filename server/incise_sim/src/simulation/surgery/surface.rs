@@ -82,6 +82,15 @@ impl OrganSurface {
         }
     }
 
+    /// Every triangle slot, live or free.
+    #[must_use]
+    pub fn triangle_slots(&self) -> &[incise_surface::Triangle] {
+        match self {
+            Self::Voxels { surface, .. } => surface.triangles(),
+            Self::Tetrahedra { surface, .. } => surface.triangles(),
+        }
+    }
+
     /// The live vertices, in id order.
     #[must_use]
     pub fn live_vertices(&self) -> &[u32] {

@@ -1,0 +1,328 @@
+//! The session in Rerun: an `.rrd` file ([`RerunLog::save`]) and a live stream to a viewer
+//! ([`LiveStream`]).
+//!
+//! | entity | what | when |
+//! |---|---|---|
+//! | `organ` | `Mesh3D`, vertex colours by tissue label | every surface frame (positions only while the topology holds) |
+//! | `tools/<name>` | `Transform3D` (the tool's pose) | every surface frame |
+//! | `tools/<name>/outer` | the outer shape (ellipsoid, capsule or box) | once |
+//! | `forces/<name>` | `Arrows3D`, 2 cm per newton, from the tool's origin | every surface frame |
+//! | `plots/force/<name>` | force x, y, z (N) | every frame |
+//! | `plots/frame_ms`, `plots/stage/<stage>_ms` | frame and stage wall times | every frame |
+//! | `plots/contact_points`, `plots/frame_rate_hz` | | every frame |
+//! | `events/cuts` | `TextLog` | every cut |
+//!
+//! Two timelines: `frame` (the physics frame, from 1) and `sim_time` (simulated time).
+
+use crate::foxglove::ARROW_M_PER_N;
+use crate::visual::{SurfaceFrame, SurfaceState, ToolLook, ToolShape, label_colour};
+use incise_protocol::v1;
+use rerun::RecordingStream;
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+/// The application id every incise recording carries (how the viewer groups them).
+pub const APPLICATION_ID: &str = "incise";
+
+/// A Rerun recording stream and what it needs to draw the session.
+pub struct RerunLog {
+    stream: RecordingStream,
+    tools: Vec<ToolLook>,
+    /// The surface as the surface frames so far describe it.
+    surface: SurfaceState,
+}
+
+impl RerunLog {
+    /// An `.rrd` file at `path`.
+    pub fn save(path: &Path, tools: &[ToolLook]) -> Result<Self, String> {
+        let stream = rerun::RecordingStreamBuilder::new(APPLICATION_ID)
+            .save(path)
+            .map_err(|e| format!("{}: cannot start the Rerun file: {e}", path.display()))?;
+        Ok(Self::on(stream, tools))
+    }
+
+    /// A live stream to the viewer (or proxy) at `url`, e.g.
+    /// `rerun+http://127.0.0.1:9876/proxy`.
+    pub fn connect(url: &str, tools: &[ToolLook]) -> Result<Self, String> {
+        let stream = rerun::RecordingStreamBuilder::new(APPLICATION_ID)
+            .connect_grpc_opts(url)
+            .map_err(|e| format!("cannot stream to the Rerun viewer at {url}: {e}"))?;
+        Ok(Self::on(stream, tools))
+    }
+
+    fn on(stream: RecordingStream, tools: &[ToolLook]) -> Self {
+        let log = Self { stream, tools: tools.to_vec(), surface: SurfaceState::default() };
+        log.tool_shapes();
+        log
+    }
+
+    /// Each tool's outer shape, in its own frame, once.
+    fn tool_shapes(&self) {
+        let grey = rerun::Color::from_unmultiplied_rgba(160, 160, 170, 255);
+        let f = |v: [f64; 3]| v.map(|c| c as f32);
+        for look in &self.tools {
+            let path = format!("tools/{}/outer", look.name);
+            let result = match look.shape {
+                ToolShape::Sphere { centre, radius } => self.stream.log_static(
+                    path,
+                    &rerun::Ellipsoids3D::from_centers_and_radii([f(centre)], [radius as f32])
+                        .with_colors([grey]),
+                ),
+                ToolShape::Capsule { start, radius, length } => self.stream.log_static(
+                    path,
+                    &rerun::Capsules3D::from_lengths_and_radii([length as f32], [radius as f32])
+                        .with_translations([f(start)])
+                        .with_colors([grey]),
+                ),
+                ToolShape::Box { min, max } => self.stream.log_static(
+                    path,
+                    &rerun::Boxes3D::from_mins_and_sizes(
+                        [f(min)],
+                        [f(std::array::from_fn(|i| max[i] - min[i]))],
+                    )
+                    .with_colors([grey]),
+                ),
+            };
+            warn(result);
+        }
+    }
+
+    fn at(&self, frame: u64, sim_time_s: f64) {
+        self.stream.set_time_sequence("frame", frame as i64);
+        self.stream.set_duration_secs("sim_time", sim_time_s);
+    }
+
+    fn scalar(&self, path: &str, values: &[f64]) {
+        warn(self.stream.log(path, &rerun::Scalars::new(values.iter().copied())));
+    }
+
+    /// A frame's time series: each posed tool's force, the frame's and its stages' wall times,
+    /// its contact points and the frame rate.
+    pub fn frame(&mut self, record: &v1::FrameRecord) {
+        self.at(record.frame, record.sim_time_s);
+        for state in &record.tools {
+            let Some(look) = self.tools.get(state.tool_id as usize) else { continue };
+            let f = state.force.unwrap_or_default();
+            self.scalar(&format!("plots/force/{}", look.name), &[f.x, f.y, f.z]);
+        }
+        if let Some(s) = &record.stats {
+            self.scalar("plots/frame_ms", &[s.frame_ms]);
+            for (stage, ms) in [
+                ("contact", s.contact_ms),
+                ("cut", s.cut_ms),
+                ("grid", s.grid_ms),
+                ("remesh", s.remesh_ms),
+                ("mechanics", s.mechanics_ms),
+            ] {
+                self.scalar(&format!("plots/stage/{stage}_ms"), &[ms]);
+            }
+            self.scalar("plots/contact_points", &[f64::from(s.contact_points)]);
+            self.scalar("plots/frame_rate_hz", &[s.frame_rate_hz]);
+        }
+    }
+
+    /// A cut, as a line of the event log.
+    pub fn cut(&mut self, cut: &v1::CutEvent, sim_time_s: f64) {
+        self.at(cut.frame, sim_time_s);
+        let tool = self.tools.get(cut.tool_id as usize).map_or("?", |t| t.name.as_str());
+        let text = format!(
+            "{tool} cut: {} voxels removed, {} links severed, {} tetrahedra removed",
+            cut.voxels_removed, cut.links_severed, cut.tets_removed
+        );
+        warn(self.stream.log("events/cuts", &rerun::TextLog::new(text)));
+    }
+
+    /// The organ's surface, and each posed tool's pose and force arrow, at `surface`'s frame
+    /// (`record`: that frame's record).
+    pub fn surface(&mut self, surface: &SurfaceFrame, record: Option<&v1::FrameRecord>) {
+        self.at(surface.frame, surface.sim_time_s);
+        self.surface.apply(surface);
+        if surface.changes_topology() {
+            let mesh = self.surface.mesh();
+            let mut colours = vec![
+                rerun::Color::from_unmultiplied_rgba(200, 200, 200, 255);
+                mesh.positions.len()
+            ];
+            for (t, &l) in mesh.triangles.iter().zip(&mesh.labels) {
+                let [r, g, b, a] = label_colour(l);
+                for &v in t {
+                    colours[v as usize] = rerun::Color::from_unmultiplied_rgba(r, g, b, a);
+                }
+            }
+            warn(
+                self.stream.log(
+                    "organ",
+                    &rerun::Mesh3D::new(mesh.positions)
+                        .with_triangle_indices(mesh.triangles)
+                        .with_vertex_colors(colours),
+                ),
+            );
+        } else {
+            // The topology holds: only the positions change.
+            warn(self.stream.log(
+                "organ",
+                &rerun::Mesh3D::update_fields().with_vertex_positions(self.surface.positions()),
+            ));
+        }
+        let Some(record) = record else { return };
+        for state in &record.tools {
+            let Some(look) = self.tools.get(state.tool_id as usize) else { continue };
+            let Some(pose) = record.poses.iter().find(|p| p.tool_id == state.tool_id) else {
+                continue;
+            };
+            let p = pose.position.unwrap_or_default();
+            let q = pose.orientation.unwrap_or_default();
+            let at = [p.x as f32, p.y as f32, p.z as f32];
+            let n = (q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z).sqrt();
+            let rotation = if n > 0.0 && n.is_finite() {
+                rerun::Quaternion::from_xyzw([q.x, q.y, q.z, q.w].map(|c| (c / n) as f32))
+            } else {
+                rerun::Quaternion::IDENTITY
+            };
+            warn(self.stream.log(
+                format!("tools/{}", look.name),
+                &rerun::Transform3D::from_translation_rotation(at, rotation),
+            ));
+            let f = state.force.unwrap_or_default();
+            let arrow = [f.x, f.y, f.z].map(|c| (c * ARROW_M_PER_N) as f32);
+            warn(
+                self.stream.log(
+                    format!("forces/{}", look.name),
+                    &rerun::Arrows3D::from_vectors([arrow])
+                        .with_origins([at])
+                        .with_colors([rerun::Color::from_unmultiplied_rgba(250, 220, 40, 255)]),
+                ),
+            );
+        }
+    }
+
+    /// Writes what is buffered and waits until the sink has taken it (at most `timeout`).
+    pub fn flush(&self, timeout: Duration) -> Result<(), String> {
+        self.stream.flush_with_timeout(timeout).map_err(|e| e.to_string())
+    }
+
+    /// Flushes and closes the stream.
+    pub fn finish(self) -> Result<(), String> {
+        self.stream.flush_blocking().map_err(|e| e.to_string())
+    }
+}
+
+/// What the live stream is handed.
+#[derive(Clone, Debug)]
+pub enum LiveItem {
+    /// A frame's record.
+    Frame(Arc<v1::FrameRecord>),
+    /// A cut at a simulated time.
+    Cut(v1::CutEvent, f64),
+    /// A surface frame, with its frame's record.
+    Surface(Arc<SurfaceFrame>, Option<Arc<v1::FrameRecord>>),
+}
+
+/// What the live stream counts.
+#[derive(Debug, Default)]
+pub struct LiveStats {
+    /// Surface frames dropped because the viewer was behind.
+    pub dropped_geometry: AtomicU64,
+    /// Frame records and cuts dropped because the stream's queue was full.
+    pub dropped_frames: AtomicU64,
+    /// Surface frames sent.
+    pub sent_geometry: AtomicU64,
+}
+
+/// Says once that Rerun refused a log call (each would fail the same way, every frame).
+fn warn(result: Result<(), rerun::RecordingStreamError>) {
+    static SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    if let Err(e) = result
+        && !SAID.swap(true, Ordering::Relaxed)
+    {
+        tracing::warn!("rerun refused a log call (further refusals are not reported): {e}");
+    }
+}
+
+/// Items queued before the live stream drops frame records too.
+const LIVE_QUEUE: usize = 1024;
+/// Items queued above which a surface frame is dropped rather than queued.
+const LIVE_GEOMETRY_BACKLOG: u64 = 16;
+
+/// A thread (`incise-rerun-live`) that streams the session to a viewer. It never makes its
+/// caller wait: when the viewer falls behind (each surface frame is flushed through before the
+/// next is taken), surface frames are dropped first and counted, then frame records.
+pub struct LiveStream {
+    tx: Option<SyncSender<LiveItem>>,
+    queued: Arc<AtomicU64>,
+    stats: Arc<LiveStats>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl LiveStream {
+    /// Starts streaming through `log` (a [`RerunLog::connect`]).
+    pub fn start(log: RerunLog) -> std::io::Result<Self> {
+        let (tx, rx) = mpsc::sync_channel(LIVE_QUEUE);
+        let queued = Arc::new(AtomicU64::new(0));
+        let stats = Arc::new(LiveStats::default());
+        let thread = {
+            let (queued, stats) = (Arc::clone(&queued), Arc::clone(&stats));
+            std::thread::Builder::new()
+                .name("incise-rerun-live".into())
+                .spawn(move || stream_live(log, &rx, &queued, &stats))?
+        };
+        Ok(Self { tx: Some(tx), queued, stats, thread: Some(thread) })
+    }
+
+    /// Offers an item; drops it (counted) when the viewer is behind.
+    pub fn offer(&self, item: LiveItem) {
+        let Some(tx) = &self.tx else { return };
+        let geometry = matches!(item, LiveItem::Surface(..));
+        if geometry && self.queued.load(Ordering::Acquire) > LIVE_GEOMETRY_BACKLOG {
+            self.stats.dropped_geometry.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        self.queued.fetch_add(1, Ordering::AcqRel);
+        if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = tx.try_send(item) {
+            self.queued.fetch_sub(1, Ordering::AcqRel);
+            let counter =
+                if geometry { &self.stats.dropped_geometry } else { &self.stats.dropped_frames };
+            counter.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// The counters.
+    #[must_use]
+    pub fn stats(&self) -> &LiveStats {
+        &self.stats
+    }
+
+    /// Streams what is queued and closes the stream.
+    pub fn finish(mut self) {
+        drop(self.tx.take());
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+fn stream_live(mut log: RerunLog, rx: &Receiver<LiveItem>, queued: &AtomicU64, stats: &LiveStats) {
+    while let Ok(item) = rx.recv() {
+        queued.fetch_sub(1, Ordering::AcqRel);
+        match item {
+            LiveItem::Frame(record) => log.frame(&record),
+            LiveItem::Cut(cut, t) => log.cut(&cut, t),
+            LiveItem::Surface(surface, record) => {
+                log.surface(&surface, record.as_deref());
+                stats.sent_geometry.fetch_add(1, Ordering::Relaxed);
+                // Hold the queue here until the viewer has the surface: a slow viewer then
+                // shows as a backlog, and the next surface frames are dropped.
+                if let Err(e) = log.flush(Duration::from_secs(2)) {
+                    tracing::debug!("rerun live stream: {e}");
+                }
+            }
+        }
+    }
+    if let Err(e) = log.finish() {
+        tracing::warn!("rerun live stream: {e}");
+    }
+}

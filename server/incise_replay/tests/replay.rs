@@ -80,6 +80,28 @@ fn a_recorded_demo_replays_bit_for_bit_and_a_changed_frame_is_found() {
     assert_eq!(code, 1, "{out}");
     assert_eq!(json["first_divergence"]["frame"].as_u64(), Some(k), "{out}");
     assert_eq!(json["first_divergence"]["what"], "state");
+    // --from after it compares only what follows (the frames before are stepped, not
+    // compared); --to stops there.
+    let (from, to) = (k.to_string(), (k + 200).to_string());
+    let after = (k + 1).to_string();
+    let (code, json, out) = replay(&changed, &["--from", &after, "--to", &to]);
+    assert_eq!(code, 0, "{out}");
+    assert_eq!(json["frames"].as_u64(), Some(k + 200), "{out}");
+    let (code, _, out) = replay(&changed, &["--from", &from, "--to", &to]);
+    assert_eq!(code, 1, "{out}");
+
+    // --to-rrd renders a stretch of the recording for the viewer, from the keyframe before it.
+    let rrd = dir.join("stretch.rrd");
+    let out = Command::new(env!("CARGO_BIN_EXE_incise-replay"))
+        .arg(&file)
+        .args(["--from", &from, "--to", &to, "--to-rrd"])
+        .arg(&rrd)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{said}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(said.contains("201 frames rendered"), "{said}");
+    assert!(std::fs::metadata(&rrd).unwrap().len() > 10_000);
 
     // One recorded force moved by 1 µN where the scalpel presses: a divergence bit for bit,
     // none within 1 mN (which skips the state hash).

@@ -357,6 +357,10 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
             git_revision: String::new(),
             tools: tools.clone(),
             scene_interval_s: 0.1,
+            files: incise_server::scene::stored_files(
+                &scene.config,
+                path.parent().unwrap_or(std::path::Path::new(".")),
+            ),
         };
         // What the server records: the MCAP file and its `.rrd` twin.
         let recorder = incise_record::Recorder::with_sinks(incise_record::Sinks {

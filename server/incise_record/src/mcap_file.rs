@@ -47,6 +47,9 @@ pub struct Session {
     pub git_revision: String,
     /// How each of the scene's tools is drawn, in scene order.
     pub tools: Vec<ToolLook>,
+    /// The files the scene reads (its volume, meshes), as the scene names them, stored so
+    /// that the recording replays on its own.
+    pub files: Vec<(String, Vec<u8>)>,
     /// Simulated time between two Foxglove scene updates (s); each repeats the whole surface,
     /// so they are sparser than the surface frames.
     pub scene_interval_s: f64,
@@ -133,6 +136,17 @@ impl McapRecording {
                 data: session.scene_toml.as_bytes().into(),
             })
             .map_err(mcap)?;
+        for (name, data) in &session.files {
+            writer
+                .attach(&mcap::Attachment {
+                    log_time: 0,
+                    create_time: 0,
+                    name: name.clone(),
+                    media_type: "application/octet-stream".into(),
+                    data: data.as_slice().into(),
+                })
+                .map_err(mcap)?;
+        }
         Ok(Self {
             path: path.to_owned(),
             writer,

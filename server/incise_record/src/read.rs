@@ -23,6 +23,8 @@ pub struct Contents {
     pub surfaces: Vec<(v1::SurfaceMesh, u64)>,
     /// The scene's TOML, when attached.
     pub scene_toml: Option<String>,
+    /// The files the scene reads, stored beside it (name as the scene writes it, bytes).
+    pub files: BTreeMap<String, Vec<u8>>,
     /// The `incise` metadata record.
     pub metadata: BTreeMap<String, String>,
     /// Why reading stopped early, when the file ends mid-record (a crash).
@@ -191,6 +193,9 @@ impl Reading {
             Record::Metadata(m) if m.name == "incise" => self.contents.metadata = m.metadata,
             Record::Attachment { header, data, .. } if header.name == "scene.toml" => {
                 self.contents.scene_toml = Some(String::from_utf8_lossy(&data).into_owned());
+            }
+            Record::Attachment { header, data, .. } => {
+                self.contents.files.insert(header.name, data.into_owned());
             }
             _ => {}
         }

@@ -17,6 +17,7 @@ fn session() -> Session {
         git_revision: "abc123".into(),
         tools: Vec::new(),
         scene_interval_s: 0.1,
+        files: Vec::new(),
     }
 }
 

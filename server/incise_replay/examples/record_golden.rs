@@ -104,6 +104,7 @@ fn record(
         git_revision: String::new(),
         tools: incise_server::physics::tool_looks(&parsed.config),
         scene_interval_s: 0.1,
+        files: Vec::new(),
     };
     let mut recording = McapRecording::create(path, &session)?;
     for (i, &position) in positions.iter().enumerate() {

@@ -12,7 +12,7 @@ use incise_protocol::raw::RawToolPose;
 use incise_protocol::v1;
 use incise_record::Contents;
 use incise_sim::{Simulation, StepInputs};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// How a replay compares.
@@ -51,13 +51,68 @@ pub struct Outcome {
     pub elapsed: Duration,
 }
 
-/// Rebuilds `contents`' scene (files it names are read relative to `base`).
+/// Rebuilds `contents`' scene. The files it names are read relative to `base`; when one is
+/// not there and the recording stores it, the stored files are used instead (written under a
+/// temporary folder in the places the scene names).
 pub fn simulation(contents: &Contents, base: &Path) -> anyhow::Result<Simulation> {
     let toml = contents.scene_toml.as_deref().ok_or_else(|| {
         anyhow::anyhow!("the recording holds no scene (no scene.toml attachment)")
     })?;
+    let missing = contents.files.keys().any(|name| !base.join(name).is_file());
+    let stored = if missing { Some(unpack_files(contents)?) } else { None };
+    let base = stored.as_ref().map_or(base, |(_, b)| b.as_path());
     let scene = incise_scene::scene_from_toml(toml, "<the recording's scene>", base)?;
-    Ok(Simulation::new(&scene.config, &scene.geometry, "<the recording's scene>")?)
+    let sim = Simulation::new(&scene.config, &scene.geometry, "<the recording's scene>")?;
+    if let Some((dir, _)) = stored {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+    Ok(sim)
+}
+
+/// Writes the recording's stored files under a new temporary folder, each at the place its
+/// name (relative to the scene, possibly through `..`) points to from the returned base: the
+/// folder and the base.
+fn unpack_files(contents: &Contents) -> anyhow::Result<(PathBuf, PathBuf)> {
+    use std::path::Component;
+    static UNPACKED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = UNPACKED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("incise-replay-{}-{n}", std::process::id()));
+    // Deep enough that every name's leading `..` stays inside the folder.
+    let depth = contents
+        .files
+        .keys()
+        .map(|name| Path::new(name).components().take_while(|c| *c == Component::ParentDir).count())
+        .max()
+        .unwrap_or(0);
+    let base = (0..depth).fold(dir.join("scene"), |b, i| b.join(format!("d{i}")));
+    for (name, bytes) in &contents.files {
+        let path = Path::new(name);
+        anyhow::ensure!(
+            path.components().all(|c| matches!(
+                c,
+                Component::Normal(_) | Component::ParentDir | Component::CurDir
+            )),
+            "the recording stores a file named {name:?}, which is not a relative path"
+        );
+        // Resolved by hand: the folders a `..` climbs out of do not exist yet.
+        let mut at = base.clone();
+        for c in path.components() {
+            match c {
+                Component::ParentDir => {
+                    at.pop();
+                }
+                Component::Normal(part) => at.push(part),
+                _ => {}
+            }
+        }
+        anyhow::ensure!(at.starts_with(&dir), "{name:?} climbs out of the scene's folder");
+        if let Some(parent) = at.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        std::fs::write(&at, bytes)?;
+    }
+    std::fs::create_dir_all(&base)?;
+    Ok((dir, base))
 }
 
 /// Replays `contents` on `sim`, calling `progress` after every frame; stops at the first

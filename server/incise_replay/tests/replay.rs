@@ -36,6 +36,7 @@ fn rewrite(
         git_revision: String::new(),
         tools: Vec::new(),
         scene_interval_s: 0.1,
+        files: Vec::new(),
     };
     let mut recording = McapRecording::create(path, &session).unwrap();
     for f in &contents.frames {
@@ -135,5 +136,45 @@ fn a_recorded_demo_replays_bit_for_bit_and_a_changed_frame_is_found() {
     let (code, _, out) = replay(&foreign, &[]);
     assert_eq!(code, 2, "{out}");
     assert!(out.contains("not an MCAP file"), "{out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A recording of a scene read from files stores the files it reads (the liver CT, 100 KB),
+/// so it replays bit for bit from a folder where the scene's relative paths lead nowhere.
+#[test]
+fn a_recording_carries_its_volume_and_replays_anywhere() {
+    use incise_server::physics::{frame_record, frame_stats};
+    let scene_file =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/scenes/liver_13k.toml");
+    let toml = std::fs::read_to_string(&scene_file).unwrap();
+    let config = incise_sim::SceneConfig::from_toml(&toml, "liver_13k.toml").unwrap();
+    let files = incise_server::scene::stored_files(&config, scene_file.parent().unwrap());
+    assert_eq!(files.len(), 1, "the liver CT");
+    assert_eq!(files[0].0, "../../tests/data/liver.inr.gz");
+    let scene = incise_scene::read_scene(&scene_file).unwrap();
+    let mut sim = incise_sim::Simulation::new(&scene.config, &scene.geometry, "liver").unwrap();
+    let dir = std::env::temp_dir().join(format!("incise_replay_stored_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("liver.mcap");
+    let session = Session {
+        scene: "liver_13k".into(),
+        scene_toml: toml,
+        version: "test".into(),
+        git_revision: String::new(),
+        tools: Vec::new(),
+        scene_interval_s: 0.1,
+        files,
+    };
+    let mut recording = McapRecording::create(&file, &session).unwrap();
+    for _ in 0..20 {
+        let frame = sim.step(&incise_sim::StepInputs::default()).unwrap();
+        let stats = frame_stats(&frame, &sim, Duration::ZERO, 0.0);
+        recording.frame(&frame_record(&frame, &[], stats)).unwrap();
+    }
+    recording.finish().unwrap();
+    let (code, json, out) = replay(&file, &[]);
+    assert_eq!(code, 0, "{out}");
+    assert_eq!(json["frames"].as_u64(), Some(20), "{out}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -4,6 +4,7 @@ use anyhow::Context;
 use clap::Parser;
 use incise_haptics::HapticSettings;
 use incise_server::server::{self, Options};
+use incise_sim::config::SceneConfig;
 use incise_transport::zenoh_link::Endpoints;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -85,7 +86,7 @@ fn main() -> anyhow::Result<()> {
         "--max-force must be a positive number of newtons, not {}",
         cli.max_force
     );
-    let options = Options {
+    let mut options = Options {
         zenoh: (!cli.no_zenoh).then(|| Endpoints {
             listen: cli.listen.clone(),
             connect: Vec::new(),
@@ -105,7 +106,16 @@ fn main() -> anyhow::Result<()> {
                 .with_context(|| format!("cannot read the scene {}", path.display()))?,
             None => incise_server::scene::DEMO_SCENE.to_owned(),
         },
+        scene_files: Vec::new(),
     };
+    if let (Some(path), Some(_)) = (&cli.scene, &options.record) {
+        // A scene that does not parse is reported by the scene loader below, with its place.
+        if let Ok(config) = SceneConfig::from_toml(&options.scene_toml, &path.display().to_string())
+        {
+            let base = path.parent().unwrap_or(std::path::Path::new("."));
+            options.scene_files = incise_server::scene::stored_files(&config, base);
+        }
+    }
     if cli.demo {
         anyhow::ensure!(
             cli.scene.is_none(),

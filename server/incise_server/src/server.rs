@@ -37,6 +37,9 @@ pub struct Options {
     pub geometry_hz: f64,
     /// The scene file's text, stored in a recording (so it replays on its own).
     pub scene_toml: String,
+    /// The files the scene reads, stored in a recording beside it
+    /// ([`crate::scene::stored_files`]).
+    pub scene_files: Vec<(String, Vec<u8>)>,
 }
 
 impl Default for Options {
@@ -49,6 +52,7 @@ impl Default for Options {
             rerun_connect: None,
             geometry_hz: physics::DEFAULT_GEOMETRY_HZ,
             scene_toml: crate::scene::DEMO_SCENE.to_owned(),
+            scene_files: Vec::new(),
         }
     }
 }
@@ -413,6 +417,7 @@ fn start_recorder(
             git_revision: option_env!("INCISE_GIT_REVISION").unwrap_or("").into(),
             tools: tools.to_vec(),
             scene_interval_s: SCENE_INTERVAL_S,
+            files: options.scene_files.clone(),
         };
         sinks.mcap = Some(McapRecording::create(&path, &session)?);
         sinks.rrd =

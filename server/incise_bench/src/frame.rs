@@ -370,6 +370,8 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
                     .map_err(anyhow::Error::msg)?,
             ),
             live: None,
+            // No haptic loop runs here.
+            forces: None,
         })?;
         let (recorded, wall_on) = play(&mut again, &script, &o, Some(&recorder.handle()))?;
         let waits = recorder.stats().waits.load(std::sync::atomic::Ordering::Relaxed);

@@ -22,10 +22,12 @@
 //! no lock); [`run`] the thread that drives it and measures its period's jitter.
 
 pub mod cell;
+pub mod force_log;
 pub mod render;
 pub mod run;
 pub mod snapshot;
 
+pub use force_log::{ForceLog, SentForce};
 pub use render::{HapticSettings, Renderer};
 pub use run::{HapticLoop, Jitter, LoopIo, LoopShared, Waker};
 pub use snapshot::ToolSnapshot;

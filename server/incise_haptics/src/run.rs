@@ -87,6 +87,8 @@ pub struct LoopShared {
     /// The counters.
     pub counters: Counters,
     jitter: Jitter,
+    /// Every force sent, for a recorder ([`Self::log_forces`]).
+    force_log: std::sync::OnceLock<Arc<crate::ForceLog>>,
 }
 
 impl LoopShared {
@@ -105,7 +107,14 @@ impl LoopShared {
             stop: AtomicBool::new(false),
             counters: Counters::default(),
             jitter: Jitter::default(),
+            force_log: std::sync::OnceLock::new(),
         })
+    }
+
+    /// From now on, the loop also appends every force it sends to a ring of `capacity` records
+    /// for a recorder to take; the ring (the same one on a second call).
+    pub fn log_forces(&self, capacity: usize) -> Arc<crate::ForceLog> {
+        Arc::clone(self.force_log.get_or_init(|| Arc::new(crate::ForceLog::new(capacity))))
     }
 
     /// The number of tools.
@@ -359,6 +368,10 @@ impl HapticLoop {
                 shared.counters.clamped.fetch_add(1, Ordering::Relaxed);
             }
             shared.forces[tool].write(&force_words(&force));
+            if let Some(log) = shared.force_log.get() {
+                let snapshot_frame = snapshot.as_ref().map_or(0, |s| s.frame);
+                log.push(&crate::SentForce { force, snapshot_frame });
+            }
             shared.counters.updates.fetch_add(1, Ordering::Relaxed);
             if tool < 64 {
                 updated |= 1 << tool;

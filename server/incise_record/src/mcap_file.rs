@@ -13,6 +13,8 @@ use std::path::{Path, PathBuf};
 pub const FRAME_TOPIC: &str = "/incise/frame";
 /// The topic of every `incise.v1.CutEvent`.
 pub const CUT_TOPIC: &str = "/incise/cut";
+/// The topic of every force the haptic loop sent, `incise.v1.SentForce`.
+pub const FORCE_TOPIC: &str = "/incise/force";
 /// The topic of the organ's surface, `incise.v1.SurfaceMesh`: whole on the first frame and once a
 /// second; in between, every vertex's position at the geometry rate, and each topology change
 /// (new triangles and vertices, freed ids) on the frame that made it.
@@ -72,6 +74,7 @@ pub struct McapRecording {
     frame_channel: u16,
     cut_channel: u16,
     surface_channel: u16,
+    force_channel: u16,
     scene_channel: u16,
     pose_channels: Vec<u16>,
     tools: Vec<ToolLook>,
@@ -109,6 +112,7 @@ impl McapRecording {
         let frame_channel = channel("incise.v1.FrameRecord", FRAME_TOPIC)?;
         let cut_channel = channel("incise.v1.CutEvent", CUT_TOPIC)?;
         let surface_channel = channel("incise.v1.SurfaceMesh", SURFACE_TOPIC)?;
+        let force_channel = channel("incise.v1.SentForce", FORCE_TOPIC)?;
         let scene_channel = channel("foxglove.SceneUpdate", SCENE_TOPIC)?;
         let pose_channels = session
             .tools
@@ -153,6 +157,7 @@ impl McapRecording {
             frame_channel,
             cut_channel,
             surface_channel,
+            force_channel,
             scene_channel,
             pose_channels,
             tools: session.tools.clone(),
@@ -224,6 +229,20 @@ impl McapRecording {
             self.last_scene_s = Some(t);
         }
         Ok(())
+    }
+
+    /// Writes a force the haptic loop sent, logged at simulated time `sim_time_s` (the newest
+    /// frame's when the recorder took it).
+    pub fn sent_force(
+        &mut self,
+        sent: &incise_haptics::SentForce,
+        sim_time_s: f64,
+    ) -> Result<(), RecordError> {
+        let message = v1::SentForce {
+            force: Some(v1::ToolForce::from(&sent.force)),
+            snapshot_frame: sent.snapshot_frame,
+        };
+        self.write(self.force_channel, sim_time_s, &message.encode_to_vec())
     }
 
     /// Writes a cut, made at simulated time `sim_time_s`.

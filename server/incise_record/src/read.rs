@@ -3,7 +3,7 @@
 //! a file that is not MCAP, not incise's, or of another protocol version is refused with a
 //! message that says which.
 
-use crate::mcap_file::{CUT_TOPIC, FRAME_TOPIC, SURFACE_TOPIC};
+use crate::mcap_file::{CUT_TOPIC, FORCE_TOPIC, FRAME_TOPIC, SURFACE_TOPIC};
 use incise_protocol::v1;
 use prost::Message;
 use std::collections::BTreeMap;
@@ -19,6 +19,8 @@ pub struct Contents {
     pub frames: Vec<v1::FrameRecord>,
     /// Every cut, with its log time (simulated ns).
     pub cuts: Vec<(v1::CutEvent, u64)>,
+    /// Every force the haptic loop sent.
+    pub forces: Vec<v1::SentForce>,
     /// Every surface frame, with its log time (simulated ns).
     pub surfaces: Vec<(v1::SurfaceMesh, u64)>,
     /// The scene's TOML, when attached.
@@ -182,6 +184,10 @@ impl Reading {
                         v1::CutEvent::decode(&*data).map_err(|e| bad(e.to_string()))?,
                         header.log_time,
                     )),
+                    FORCE_TOPIC => self
+                        .contents
+                        .forces
+                        .push(v1::SentForce::decode(&*data).map_err(|e| bad(e.to_string()))?),
                     SURFACE_TOPIC => self.contents.surfaces.push((
                         v1::SurfaceMesh::decode(&*data).map_err(|e| bad(e.to_string()))?,
                         header.log_time,

@@ -45,6 +45,8 @@ pub struct Sinks {
     pub rrd: Option<RerunLog>,
     /// A live Rerun viewer.
     pub live: Option<LiveStream>,
+    /// The haptic loop's sent forces, for the MCAP file.
+    pub forces: Option<Arc<incise_haptics::ForceLog>>,
 }
 
 /// What the recorder counts.
@@ -56,6 +58,8 @@ pub struct RecorderStats {
     pub waits: AtomicU64,
     /// Surface frames written.
     pub surfaces: AtomicU64,
+    /// Sent forces written.
+    pub forces: AtomicU64,
     /// Surface frames the live viewer was too slow for (dropped from the live stream only).
     pub live_dropped_geometry: AtomicU64,
     /// Frame records and cuts dropped from the live stream (its queue was full).
@@ -181,7 +185,10 @@ fn write_all(
         let first = match rx.recv_timeout(CHUNK_INTERVAL) {
             Ok(r) => Some(r),
             Err(RecvTimeoutError::Timeout) => None,
-            Err(RecvTimeoutError::Disconnected) => return Ok(()),
+            Err(RecvTimeoutError::Disconnected) => {
+                // The session is over: the forces sent up to its end are in the log.
+                return drain_forces(&mut sinks, last.as_deref(), stats);
+            }
         };
         // Take what else is queued, then pause: the physics' sends then seldom find this thread
         // blocked, so they seldom pay for waking it (a wake per frame cost the 13k liver up to
@@ -236,6 +243,7 @@ fn write_all(
                 }
             }
         }
+        drain_forces(&mut sinks, last.as_deref(), stats)?;
         if chunk_frames >= CHUNK_FRAMES
             || (chunk_frames > 0 && chunk_started.elapsed() >= CHUNK_INTERVAL)
         {
@@ -264,4 +272,20 @@ fn write_all(
         Some(mcap) => mcap.finish(),
         None => Ok(stats.frames.load(Ordering::Relaxed)),
     }
+}
+
+/// Writes the forces the haptic loop has sent since the last call, logged at `last`'s time.
+fn drain_forces(
+    sinks: &mut Sinks,
+    last: Option<&v1::FrameRecord>,
+    stats: &RecorderStats,
+) -> Result<(), RecordError> {
+    if let (Some(log), Some(mcap)) = (&sinks.forces, &mut sinks.mcap) {
+        let t = last.map_or(0.0, |r| r.sim_time_s);
+        while let Some(sent) = log.pop() {
+            mcap.sent_force(&sent, t)?;
+            stats.forces.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+    Ok(())
 }

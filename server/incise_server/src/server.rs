@@ -169,7 +169,7 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     let stop = Arc::new(AtomicBool::new(false));
     let physics_stats = Arc::new(PhysicsStats::default());
     let dt = config.dt();
-    let recorder = start_recorder(options, keys.scene(), &physics::tool_looks(config))?;
+    let recorder = start_recorder(options, keys.scene(), &physics::tool_looks(config), &shared)?;
     let network =
         Network::start(Arc::clone(&transports)).context("cannot start the network runtime")?;
     let mut threads = Vec::new();
@@ -287,13 +287,15 @@ impl Running {
             let stats = recorder.stats();
             let waits = stats.waits.load(Ordering::Relaxed);
             let surfaces = stats.surfaces.load(Ordering::Relaxed);
+            let forces = stats.forces.load(Ordering::Relaxed);
+            let forces_dropped = self.shared.log_forces(FORCE_LOG).dropped();
             let live_dropped = stats.live_dropped_geometry.load(Ordering::Relaxed);
             match recorder.finish() {
                 Ok(frames) if path.is_empty() => tracing::info!(
                     "streamed {frames} frames and {surfaces} surfaces live ({live_dropped} surfaces dropped: the viewer was behind)"
                 ),
                 Ok(frames) => tracing::info!(
-                    "recorded {frames} frames and {surfaces} surfaces to {path} and its .rrd (the physics waited for the recorder {waits} times)"
+                    "recorded {frames} frames, {surfaces} surfaces and {forces} sent forces ({forces_dropped} dropped from the log) to {path} and its .rrd (the physics waited for the recorder {waits} times)"
                 ),
                 Err(e) => tracing::error!("the recording is incomplete: {e}"),
             }
@@ -358,9 +360,10 @@ impl Running {
                     n => format!(", live viewer behind: {n} surfaces dropped"),
                 };
                 format!(
-                    " | recorded {} frames, {} surfaces ({} waits{failed}{live})",
+                    " | recorded {} frames, {} surfaces, {} forces ({} waits{failed}{live})",
                     get(&s.frames),
                     get(&s.surfaces),
+                    get(&s.forces),
                     get(&s.waits)
                 )
             }
@@ -392,6 +395,10 @@ pub fn resident_mb() -> Option<f64> {
     Some(pages * 4096.0 / 1e6)
 }
 
+/// Sent forces the ring to the recorder holds: 4 s of two tools at 1 kHz, against the
+/// recorder's 2 ms between takes.
+const FORCE_LOG: usize = 8192;
+
 /// The simulated time between two Foxglove scene updates in a recording (s).
 const SCENE_INTERVAL_S: f64 = 0.1;
 
@@ -401,6 +408,7 @@ fn start_recorder(
     options: &Options,
     scene: &str,
     tools: &[incise_record::ToolLook],
+    shared: &LoopShared,
 ) -> anyhow::Result<Option<Recorder>> {
     let mut sinks = Sinks::default();
     if let Some(dir) = &options.record {
@@ -420,6 +428,7 @@ fn start_recorder(
             files: options.scene_files.clone(),
         };
         sinks.mcap = Some(McapRecording::create(&path, &session)?);
+        sinks.forces = Some(shared.log_forces(FORCE_LOG));
         sinks.rrd =
             Some(RerunLog::save(&path.with_extension("rrd"), tools).map_err(anyhow::Error::msg)?);
     }

@@ -87,6 +87,19 @@ fn the_demo_presses_cuts_grasps_and_reports() {
             cut.frame
         );
     }
+    // Every force the haptic loop sent, each naming a frame that was recorded.
+    let updates = number_after(&summary, "haptics:");
+    let sent = contents.forces.len() as f64;
+    println!("{sent} sent forces recorded, {updates} haptic updates");
+    assert!((sent - updates).abs() <= updates * 0.02, "{sent} forces recorded of {updates} sent");
+    let last = contents.frames.last().unwrap().frame;
+    assert!(contents.forces.iter().all(|f| f.snapshot_frame <= last + 1));
+    assert!(
+        contents
+            .forces
+            .iter()
+            .any(|f| f.snapshot_frame > 0 && f.force.as_ref().is_some_and(|f| f.force.is_some()))
+    );
     let mut state = incise_record::SurfaceState::default();
     let mut keyframes_checked = 0;
     for (m, t) in surfaces {

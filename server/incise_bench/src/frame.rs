@@ -356,7 +356,7 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
             version: env!("CARGO_PKG_VERSION").into(),
             git_revision: String::new(),
             tools: tools.clone(),
-            scene_interval_s: 0.1,
+            scene_interval_s: 0.5,
             files: incise_server::scene::stored_files(
                 &scene.config,
                 path.parent().unwrap_or(std::path::Path::new(".")),

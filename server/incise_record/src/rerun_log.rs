@@ -34,6 +34,10 @@ pub struct RerunLog {
     tools: Vec<ToolLook>,
     /// The surface as the surface frames so far describe it.
     surface: SurfaceState,
+    /// The topology changed since the mesh was last logged whole.
+    stale_topology: bool,
+    /// Vertices in the mesh last logged whole.
+    logged_vertices: usize,
 }
 
 impl RerunLog {
@@ -55,7 +59,13 @@ impl RerunLog {
     }
 
     fn on(stream: RecordingStream, tools: &[ToolLook]) -> Self {
-        let log = Self { stream, tools: tools.to_vec(), surface: SurfaceState::default() };
+        let log = Self {
+            stream,
+            tools: tools.to_vec(),
+            surface: SurfaceState::default(),
+            stale_topology: false,
+            logged_vertices: 0,
+        };
         log.tool_shapes();
         log
     }
@@ -141,7 +151,17 @@ impl RerunLog {
     pub fn surface(&mut self, surface: &SurfaceFrame, record: Option<&v1::FrameRecord>) {
         self.at(surface.frame, surface.sim_time_s);
         self.surface.apply(surface);
-        if surface.changes_topology() {
+        self.stale_topology |= surface.changes_topology();
+        // A frame taken for a topology change alone carries only the new vertices' positions:
+        // the mesh is logged whole on the next frame that has them all (at most one geometry
+        // tick later), not on every cutting frame.
+        let all_positions =
+            surface.whole || surface.vertex_ids.len() >= self.surface.vertex_count();
+        if !all_positions {
+            return;
+        }
+        if self.stale_topology {
+            self.stale_topology = false;
             let mesh = self.surface.mesh();
             let mut colours = vec![
                 rerun::Color::from_unmultiplied_rgba(200, 200, 200, 255);
@@ -161,7 +181,7 @@ impl RerunLog {
                         .with_vertex_colors(colours),
                 ),
             );
-        } else {
+        } else if self.logged_vertices == self.surface.vertex_count() {
             // The topology holds: only the positions change.
             warn(self.stream.log(
                 "organ",

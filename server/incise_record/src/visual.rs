@@ -145,6 +145,12 @@ impl SurfaceState {
         Mesh { positions: self.vertices.values().copied().collect(), triangles, labels }
     }
 
+    /// Live vertices.
+    #[must_use]
+    pub fn vertex_count(&self) -> usize {
+        self.vertices.len()
+    }
+
     /// The triangles by id: corners (vertex ids) and label.
     #[must_use]
     pub fn triangles(&self) -> &BTreeMap<u32, ([u32; 3], u16)> {

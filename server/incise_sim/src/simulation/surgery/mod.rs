@@ -557,14 +557,34 @@ impl Simulation {
     ) -> Option<SurfaceGeometry> {
         let surgery = self.surgery.as_ref()?;
         let surface = &surgery.surface;
-        let mut slots = Vec::new();
-        surface.deform(&self.state.x, self.model(), &mut slots);
-        let vertex_ids: Vec<u32> = match vertices {
-            Some(ids) => ids.iter().copied().filter(|&v| surface.is_live(v)).collect(),
-            None => surface.live_vertices().to_vec(),
-        };
         // Rendering precision: f32 holds a micrometre within 16 m of the origin.
-        let positions = vertex_ids.iter().map(|&v| slots[v as usize].map(|c| c as f32)).collect();
+        let f32s = |p: Vec3| p.map(|c| c as f32);
+        // A few vertices (a cut's new ones) from their embeddings: no whole deform on the
+        // physics thread for them.
+        let (vertex_ids, positions): (Vec<u32>, Vec<[f32; 3]>) = if let Some(ids) = vertices {
+            ids.iter()
+                .copied()
+                .filter(|&v| surface.is_live(v))
+                .map(|v| {
+                    let e = surface.embedding(v);
+                    let mut p = [0.0; 3];
+                    for (&n, &w) in e.nodes.iter().zip(&e.weights) {
+                        if w != 0.0 {
+                            for (c, x) in p.iter_mut().zip(self.state.x[n as usize]) {
+                                *c += w * x;
+                            }
+                        }
+                    }
+                    (v, f32s(p))
+                })
+                .unzip()
+        } else {
+            let mut slots = Vec::new();
+            surface.deform(&self.state.x, self.model(), &mut slots);
+            let ids = surface.live_vertices().to_vec();
+            let positions = ids.iter().map(|&v| f32s(slots[v as usize])).collect();
+            (ids, positions)
+        };
         let (triangle_ids, triangles, triangle_labels) =
             surface_triangles(surface, self.grid(), triangles);
         Some(SurfaceGeometry { vertex_ids, positions, triangle_ids, triangles, triangle_labels })

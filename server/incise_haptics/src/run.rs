@@ -111,6 +111,12 @@ impl LoopShared {
         })
     }
 
+    /// The ring of sent forces, once [`Self::log_forces`] has made it.
+    #[must_use]
+    pub fn force_log(&self) -> Option<&Arc<crate::ForceLog>> {
+        self.force_log.get()
+    }
+
     /// From now on, the loop also appends every force it sends to a ring of `capacity` records
     /// for a recorder to take; the ring (the same one on a second call).
     pub fn log_forces(&self, capacity: usize) -> Arc<crate::ForceLog> {

@@ -288,7 +288,7 @@ impl Running {
             let waits = stats.waits.load(Ordering::Relaxed);
             let surfaces = stats.surfaces.load(Ordering::Relaxed);
             let forces = stats.forces.load(Ordering::Relaxed);
-            let forces_dropped = self.shared.log_forces(FORCE_LOG).dropped();
+            let forces_dropped = self.shared.force_log().map_or(0, |log| log.dropped());
             let live_dropped = stats.live_dropped_geometry.load(Ordering::Relaxed);
             match recorder.finish() {
                 Ok(frames) if path.is_empty() => tracing::info!(

@@ -25,6 +25,16 @@ static uint64_t now_ns(void) {
     return (uint64_t)t.tv_sec * 1000000000u + (uint64_t)t.tv_nsec;
 }
 
+/* Sleeps until `deadline_ns` on the monotonic clock: a servo loop's fixed period, which also
+ * keeps the tool from outrunning the physics (the descent is 1 mm per 40 ms of wall time). */
+static void sleep_until(uint64_t deadline_ns) {
+    uint64_t now = now_ns();
+    if (now >= deadline_ns) return;
+    uint64_t wait = deadline_ns - now;
+    struct timespec t = {(time_t)(wait / 1000000000u), (long)(wait % 1000000000u)};
+    nanosleep(&t, NULL);
+}
+
 int main(int argc, char **argv) {
     if (argc != 8) {
         fprintf(stderr, "usage: %s TRANSPORT SCENE TOOL ENDPOINT X Y Z\n", argv[0]);
@@ -39,7 +49,9 @@ int main(int argc, char **argv) {
     double x = atof(argv[5]), y = atof(argv[6]), z = atof(argv[7]);
     int status = 1;
     uint64_t answered = 0;
+    uint64_t start = now_ns();
     for (uint64_t seq = 1; seq <= 40000 && status != 0; ++seq) {
+        sleep_until(start + seq * 1000000u); /* 1 kHz */
         IncisePose pose;
         memset(&pose, 0, sizeof pose);
         pose.sequence = seq;

@@ -366,7 +366,7 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
         let recorder = incise_record::Recorder::with_sinks(incise_record::Sinks {
             mcap: Some(incise_record::McapRecording::create(&file, &session)?),
             rrd: Some(
-                incise_record::RerunLog::save(&file.with_extension("rrd"), &tools)
+                incise_record::RerunLog::save_session(&file.with_extension("rrd"), &tools)
                     .map_err(anyhow::Error::msg)?,
             ),
             live: None,

@@ -28,6 +28,14 @@ use std::time::Duration;
 /// The application id every incise recording carries (how the viewer groups them).
 pub const APPLICATION_ID: &str = "incise";
 
+/// How a file's rows are gathered into chunks: a file has no viewer waiting on it, so rows
+/// gather for a second (Rerun's default is 200 ms), which makes a fifth as many chunks, each
+/// with its own header and compression frame.
+const FILE_BATCHING: rerun::log::ChunkBatcherConfig = rerun::log::ChunkBatcherConfig {
+    flush_tick: Duration::from_secs(1),
+    ..rerun::log::ChunkBatcherConfig::DEFAULT
+};
+
 /// A Rerun recording stream and what it needs to draw the session.
 pub struct RerunLog {
     stream: RecordingStream,
@@ -38,14 +46,36 @@ pub struct RerunLog {
     stale_topology: bool,
     /// Vertices in the mesh last logged whole.
     logged_vertices: usize,
+    /// The time series not yet sent.
+    series: Series,
 }
 
 impl RerunLog {
-    /// An `.rrd` file at `path`.
+    /// An `.rrd` file at `path` of a bounded length (a rendered recording): it ends with
+    /// Rerun's index of every chunk (the footer the viewer seeks with), which the writer holds in
+    /// memory until it finishes.
     pub fn save(path: &Path, tools: &[ToolLook]) -> Result<Self, String> {
+        Self::file(path, tools, true)
+    }
+
+    /// An `.rrd` file at `path` that a live session writes for as long as it runs, without
+    /// Rerun's chunk index: the index grows by a row per chunk for the whole session (about
+    /// 9 MB a minute at the server's rates), so a session's memory would not stay flat. The
+    /// file is complete without it; `rerun rrd optimize` adds it (and compacts the chunks).
+    pub fn save_session(path: &Path, tools: &[ToolLook]) -> Result<Self, String> {
+        Self::file(path, tools, false)
+    }
+
+    fn file(path: &Path, tools: &[ToolLook], index: bool) -> Result<Self, String> {
+        let error = |e: &dyn std::fmt::Display| {
+            format!("{}: cannot start the Rerun file: {e}", path.display())
+        };
+        let options = rerun::sink::FileSinkOptions { write_footer: index };
+        let sink = rerun::sink::FileSink::with_options(path, options).map_err(|e| error(&e))?;
         let stream = rerun::RecordingStreamBuilder::new(APPLICATION_ID)
-            .save(path)
-            .map_err(|e| format!("{}: cannot start the Rerun file: {e}", path.display()))?;
+            .batcher_config(FILE_BATCHING)
+            .set_sinks((sink,))
+            .map_err(|e| error(&e))?;
         Ok(Self::on(stream, tools))
     }
 
@@ -65,6 +95,7 @@ impl RerunLog {
             surface: SurfaceState::default(),
             stale_topology: false,
             logged_vertices: 0,
+            series: Series::default(),
         };
         log.tool_shapes();
         log
@@ -106,33 +137,59 @@ impl RerunLog {
         self.stream.set_duration_secs("sim_time", sim_time_s);
     }
 
-    fn scalar(&self, path: &str, values: &[f64]) {
-        warn(self.stream.log(path, &rerun::Scalars::new(values.iter().copied())));
+    fn scalar(&mut self, path: &str, frame: u64, sim_time_s: f64, values: &[f64]) {
+        self.series.push(path, frame, sim_time_s, values);
+        if self.series.frames >= SERIES_FRAMES {
+            self.send_series();
+        }
+    }
+
+    /// Sends the buffered time series, a chunk per entity.
+    fn send_series(&mut self) {
+        for (path, column) in &mut self.series.columns {
+            if column.frames.is_empty() {
+                continue;
+            }
+            let rows = column.frames.len();
+            let width = column.values.len() / rows;
+            let indexes = [
+                rerun::TimeColumn::new_sequence("frame", column.frames.drain(..)),
+                rerun::TimeColumn::new_duration_secs("sim_time", column.times.drain(..)),
+            ];
+            let values = rerun::Scalars::new(column.values.drain(..));
+            match values.columns(std::iter::repeat_n(width, rows)) {
+                Ok(columns) => warn(self.stream.send_columns(path.as_str(), indexes, columns)),
+                Err(e) => warn(Err(e.into())),
+            }
+        }
+        self.series.frames = 0;
     }
 
     /// A frame's time series: each posed tool's force, the frame's and its stages' wall times,
     /// its contact points and the frame rate.
     pub fn frame(&mut self, record: &v1::FrameRecord) {
-        self.at(record.frame, record.sim_time_s);
+        let (frame, t) = (record.frame, record.sim_time_s);
         for state in &record.tools {
             let Some(look) = self.tools.get(state.tool_id as usize) else { continue };
             let f = state.force.unwrap_or_default();
-            self.scalar(&format!("plots/force/{}", look.name), &[f.x, f.y, f.z]);
+            let path = format!("plots/force/{}", look.name);
+            self.scalar(&path, frame, t, &[f.x, f.y, f.z]);
         }
         if let Some(s) = &record.stats {
-            self.scalar("plots/frame_ms", &[s.frame_ms]);
-            for (stage, ms) in [
-                ("contact", s.contact_ms),
-                ("cut", s.cut_ms),
-                ("grid", s.grid_ms),
-                ("remesh", s.remesh_ms),
-                ("mechanics", s.mechanics_ms),
+            self.scalar("plots/frame_ms", frame, t, &[s.frame_ms]);
+            for (path, ms) in [
+                ("plots/stage/contact_ms", s.contact_ms),
+                ("plots/stage/cut_ms", s.cut_ms),
+                ("plots/stage/grid_ms", s.grid_ms),
+                ("plots/stage/remesh_ms", s.remesh_ms),
+                ("plots/stage/mechanics_ms", s.mechanics_ms),
             ] {
-                self.scalar(&format!("plots/stage/{stage}_ms"), &[ms]);
+                self.scalar(path, frame, t, &[ms]);
             }
-            self.scalar("plots/contact_points", &[f64::from(s.contact_points)]);
-            self.scalar("plots/frame_rate_hz", &[s.frame_rate_hz]);
+            self.scalar("plots/contact_points", frame, t, &[f64::from(s.contact_points)]);
+            self.scalar("plots/frame_rate_hz", frame, t, &[s.frame_rate_hz]);
         }
+        self.series.frames += 1;
     }
 
     /// A cut, as a line of the event log.
@@ -221,13 +278,50 @@ impl RerunLog {
     }
 
     /// Writes what is buffered and waits until the sink has taken it (at most `timeout`).
-    pub fn flush(&self, timeout: Duration) -> Result<(), String> {
+    pub fn flush(&mut self, timeout: Duration) -> Result<(), String> {
+        self.send_series();
         self.stream.flush_with_timeout(timeout).map_err(|e| e.to_string())
     }
 
     /// Flushes and closes the stream.
-    pub fn finish(self) -> Result<(), String> {
+    pub fn finish(mut self) -> Result<(), String> {
+        self.send_series();
         self.stream.flush_blocking().map_err(|e| e.to_string())
+    }
+}
+
+/// Frames of time series buffered before they are sent: 0.1 s of a 1 kHz session.
+const SERIES_FRAMES: usize = 100;
+
+/// Time series gathered frame by frame and sent as columns ([`RecordingStream::send_columns`]):
+/// a dozen series at 1 kHz, logged a row at a time, are more rows than Rerun's batcher keeps
+/// up with on a shared core, and its queue (up to 100 MB) grows for the whole session.
+#[derive(Default)]
+struct Series {
+    /// By entity path, in the order first logged.
+    columns: Vec<(String, Column)>,
+    /// Frames gathered since the last send.
+    frames: usize,
+}
+
+/// One entity's rows: `values` holds `values.len() / frames.len()` scalars per row.
+#[derive(Default)]
+struct Column {
+    frames: Vec<i64>,
+    times: Vec<f64>,
+    values: Vec<f64>,
+}
+
+impl Series {
+    fn push(&mut self, path: &str, frame: u64, sim_time_s: f64, values: &[f64]) {
+        let i = self.columns.iter().position(|(p, _)| p == path).unwrap_or_else(|| {
+            self.columns.push((path.to_owned(), Column::default()));
+            self.columns.len() - 1
+        });
+        let column = &mut self.columns[i].1;
+        column.frames.push(i64::try_from(frame).unwrap_or(i64::MAX));
+        column.times.push(sim_time_s);
+        column.values.extend_from_slice(values);
     }
 }
 

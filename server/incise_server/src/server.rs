@@ -431,8 +431,10 @@ fn start_recorder(
         };
         sinks.mcap = Some(McapRecording::create(&path, &session)?);
         sinks.forces = Some(shared.log_forces(FORCE_LOG));
-        sinks.rrd =
-            Some(RerunLog::save(&path.with_extension("rrd"), tools).map_err(anyhow::Error::msg)?);
+        sinks.rrd = Some(
+            RerunLog::save_session(&path.with_extension("rrd"), tools)
+                .map_err(anyhow::Error::msg)?,
+        );
     }
     if let Some(url) = &options.rerun_connect {
         let log =

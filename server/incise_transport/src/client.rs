@@ -79,7 +79,7 @@ pub struct Watch<M> {
 }
 
 impl<M> Watch<M> {
-    /// The messages received so far and not yet taken.
+    /// The messages received and not yet taken (the newest 8,192 when more were not taken).
     pub fn drain(&self) -> impl Iterator<Item = M> + '_ {
         self.messages.try_iter()
     }
@@ -88,6 +88,27 @@ impl<M> Watch<M> {
     #[must_use]
     pub fn recv_timeout(&self, timeout: Duration) -> Option<M> {
         self.messages.recv_timeout(timeout).ok()
+    }
+}
+
+/// Forces a zenoh client holds that it has not read: 1 s of a 1 kHz haptic loop.
+const FORCE_QUEUE: usize = 1024;
+/// Messages a watch holds that were not taken: 8 s of 1 kHz frame statistics.
+const WATCH_QUEUE: usize = 8192;
+
+/// Queues `item`, first dropping the oldest one held when the queue is full: a client that
+/// never reads (a viewer's connection, which has a tool's forces too) or stops reading holds a
+/// bounded queue of the newest messages, not the whole session's.
+fn keep_newest<T>(tx: &flume::Sender<T>, rx: &flume::Receiver<T>, item: T) {
+    let mut item = item;
+    loop {
+        match tx.try_send(item) {
+            Ok(()) | Err(flume::TrySendError::Disconnected(_)) => return,
+            Err(flume::TrySendError::Full(back)) => {
+                item = back;
+                let _ = rx.try_recv();
+            }
+        }
     }
 }
 
@@ -126,13 +147,14 @@ impl ZenohClient {
             .express(true)
             .wait()
             .map_err(|e| TransportError(format!("zenoh: cannot publish on {key}: {e}")))?;
-        let (tx, forces) = flume::unbounded();
+        let (tx, forces) = flume::bounded(FORCE_QUEUE);
+        let oldest = forces.clone();
         let force_key = keys.tool_force(tool);
         let subscriber = session
             .declare_subscriber(force_key.clone())
             .callback(move |sample| {
                 if let Ok(f) = v1::ToolForce::decode(&*sample.payload().to_bytes()) {
-                    let _ = tx.send(RawToolForce::from(&f));
+                    keep_newest(&tx, &oldest, RawToolForce::from(&f));
                 }
             })
             .wait()
@@ -154,13 +176,14 @@ impl ZenohClient {
         &self,
         key: &str,
     ) -> Result<Watch<M>, TransportError> {
-        let (tx, messages) = flume::unbounded();
+        let (tx, messages) = flume::bounded(WATCH_QUEUE);
+        let oldest = messages.clone();
         let subscriber = self
             .zenoh
             .declare_subscriber(key.to_owned())
             .callback(move |sample| {
                 if let Ok(m) = M::decode(&*sample.payload().to_bytes()) {
-                    let _ = tx.send(m);
+                    keep_newest(&tx, &oldest, m);
                 }
             })
             .wait()

@@ -43,5 +43,5 @@ pub use read::{Contents, ReadError, read_recording};
 pub use recorder::{
     CHUNK_FRAMES, CHUNK_INTERVAL, Record, RecordHandle, Recorder, RecorderStats, Sinks,
 };
-pub use rerun_log::{LiveStream, RerunLog};
+pub use rerun_log::{IndexedRrd, LiveStream, RerunLog, index_rrd};
 pub use visual::{Mesh, SurfaceFrame, SurfaceState, ToolLook, ToolShape};

@@ -48,6 +48,10 @@ pub struct RerunLog {
     logged_vertices: usize,
     /// The time series not yet sent.
     series: Series,
+    /// Frames of time series gathered before they are sent.
+    series_frames: usize,
+    /// The session file to index when the stream finishes ([`Self::save_session`]).
+    index_on_finish: Option<std::path::PathBuf>,
 }
 
 impl RerunLog {
@@ -58,12 +62,15 @@ impl RerunLog {
         Self::file(path, tools, true)
     }
 
-    /// An `.rrd` file at `path` that a live session writes for as long as it runs, without
-    /// Rerun's chunk index: the index grows by a row per chunk for the whole session (about
-    /// 9 MB a minute at the server's rates), so a session's memory would not stay flat. The
-    /// file is complete without it; `rerun rrd optimize` adds it (and compacts the chunks).
+    /// An `.rrd` file at `path` that a live session writes for as long as it runs: Rerun's
+    /// chunk index grows by a row (about a kilobyte) per chunk for the whole session, so it is
+    /// left out while the session runs, which keeps the session's memory flat, and written by
+    /// [`index_rrd`] when the stream finishes. A session that crashed leaves its file without
+    /// the index: the viewer still opens it, and `rerun rrd optimize` adds it.
     pub fn save_session(path: &Path, tools: &[ToolLook]) -> Result<Self, String> {
-        Self::file(path, tools, false)
+        let mut log = Self::file(path, tools, false)?;
+        log.index_on_finish = Some(path.to_owned());
+        Ok(log)
     }
 
     fn file(path: &Path, tools: &[ToolLook], index: bool) -> Result<Self, String> {
@@ -76,7 +83,9 @@ impl RerunLog {
             .batcher_config(FILE_BATCHING)
             .set_sinks((sink,))
             .map_err(|e| error(&e))?;
-        Ok(Self::on(stream, tools))
+        let mut log = Self::on(stream, tools);
+        log.series_frames = FILE_SERIES_FRAMES;
+        Ok(log)
     }
 
     /// A live stream to the viewer (or proxy) at `url`, e.g.
@@ -96,6 +105,8 @@ impl RerunLog {
             stale_topology: false,
             logged_vertices: 0,
             series: Series::default(),
+            series_frames: LIVE_SERIES_FRAMES,
+            index_on_finish: None,
         };
         log.tool_shapes();
         log
@@ -139,7 +150,7 @@ impl RerunLog {
 
     fn scalar(&mut self, path: &str, frame: u64, sim_time_s: f64, values: &[f64]) {
         self.series.push(path, frame, sim_time_s, values);
-        if self.series.frames >= SERIES_FRAMES {
+        if self.series.frames >= self.series_frames {
             self.send_series();
         }
     }
@@ -283,15 +294,93 @@ impl RerunLog {
         self.stream.flush_with_timeout(timeout).map_err(|e| e.to_string())
     }
 
-    /// Flushes and closes the stream.
+    /// Flushes and closes the stream; a session's file then gets its index ([`index_rrd`]).
     pub fn finish(mut self) -> Result<(), String> {
         self.send_series();
-        self.stream.flush_blocking().map_err(|e| e.to_string())
+        self.stream.flush_blocking().map_err(|e| e.to_string())?;
+        // Dropping the stream closes the file (its writer thread ends).
+        let Self { stream, index_on_finish, .. } = self;
+        drop(stream);
+        if let Some(path) = index_on_finish {
+            let start = std::time::Instant::now();
+            let done = index_rrd(&path)?;
+            tracing::info!(
+                "{}: indexed for the viewer ({} messages, {:.1} MB) in {:.2} s",
+                path.display(),
+                done.messages,
+                done.bytes_after as f64 / 1e6,
+                start.elapsed().as_secs_f64()
+            );
+        }
+        Ok(())
     }
 }
 
-/// Frames of time series buffered before they are sent: 0.1 s of a 1 kHz session.
-const SERIES_FRAMES: usize = 100;
+/// What [`index_rrd`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct IndexedRrd {
+    /// Messages re-written.
+    pub messages: u64,
+    /// The file's size before and after (bytes).
+    pub bytes_before: u64,
+    /// The file's size with its index.
+    pub bytes_after: u64,
+}
+
+/// Gives a session's `.rrd` file ([`RerunLog::save_session`]) Rerun's chunk index, which the
+/// viewer seeks with and `rerun rrd verify` requires: the file is decoded and written again
+/// with the index (`<file>.indexing` beside it, then renamed over it), so the index's memory is
+/// held only while this runs.
+///
+/// # Errors
+/// When the file cannot be read, does not decode to its end (a file cut short by a crash) or
+/// the new one cannot be written; the original is then left as it was.
+pub fn index_rrd(path: &Path) -> Result<IndexedRrd, String> {
+    use std::io::{BufReader, BufWriter, Write as _};
+    let err = |what: &str, e: &dyn std::fmt::Display| format!("{}: {what}: {e}", path.display());
+    let bytes_before = std::fs::metadata(path).map_err(|e| err("cannot read", &e))?.len();
+    let input = std::fs::File::open(path).map_err(|e| err("cannot read", &e))?;
+    let temp = path.with_extension("rrd.indexing");
+    let result = (|| {
+        let output = std::fs::File::create(&temp).map_err(|e| err("cannot write", &e))?;
+        let mut encoder = re_log_encoding::Encoder::new_eager(
+            re_log_encoding::CrateVersion::LOCAL,
+            re_log_encoding::EncodingOptions::PROTOBUF_COMPRESSED,
+            BufWriter::new(output),
+        )
+        .map_err(|e| err("cannot write", &e))?;
+        let mut messages = 0;
+        let decoder =
+            re_log_encoding::DecoderApp::decode_lazy(BufReader::with_capacity(1 << 20, input));
+        for message in decoder {
+            let message = message.map_err(|e| err("cannot decode", &e))?;
+            encoder.append(&message).map_err(|e| err("cannot write", &e))?;
+            messages += 1;
+        }
+        encoder.finish().map_err(|e| err("cannot write its index", &e))?;
+        let mut writer = encoder.into_inner().map_err(|e| err("cannot write", &e))?;
+        writer.flush().map_err(|e| err("cannot write", &e))?;
+        drop(writer);
+        std::fs::rename(&temp, path).map_err(|e| err("cannot replace", &e))?;
+        Ok(messages)
+    })();
+    match result {
+        Ok(messages) => {
+            let bytes_after = std::fs::metadata(path).map_or(0, |m| m.len());
+            Ok(IndexedRrd { messages, bytes_before, bytes_after })
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(&temp);
+            Err(e)
+        }
+    }
+}
+
+/// Frames of time series gathered before they are sent to a viewer: 0.1 s of a 1 kHz session.
+const LIVE_SERIES_FRAMES: usize = 100;
+/// Frames of time series gathered before they are written to a file: 1 s of a 1 kHz session,
+/// a tenth as many chunks as a viewer's (each is a row of the file's index).
+const FILE_SERIES_FRAMES: usize = 1000;
 
 /// Time series gathered frame by frame and sent as columns ([`RecordingStream::send_columns`]):
 /// a dozen series at 1 kHz, logged a row at a time, are more rows than Rerun's batcher keeps

@@ -67,10 +67,12 @@ fn a_recorded_demo_replays_bit_for_bit_and_a_changed_frame_is_found() {
     assert_eq!(json["matched"], true);
     let contents = read_recording(&std::fs::read(&file).unwrap()).unwrap();
     assert_eq!(json["frames"].as_u64(), Some(contents.frames.len() as u64));
-    assert!(contents.frames.len() > 1500, "{} frames", contents.frames.len());
+    // A loaded machine steps fewer of the 2,000 frames the 2 s allow; the checks below need
+    // 200 frames after a third of them.
+    assert!(contents.frames.len() > 300, "{} frames", contents.frames.len());
 
     // One state hash changed: found at that frame, and not before.
-    let k = contents.frames[1000].frame;
+    let k = contents.frames[contents.frames.len() / 3].frame;
     let changed = dir.join("changed_state.mcap");
     rewrite(&changed, &contents, |f| {
         if f.frame == k {

@@ -28,11 +28,13 @@ fn the_demo_presses_cuts_grasps_and_reports() {
     println!("{summary}");
     assert!(out.status.success(), "{summary}{}", String::from_utf8_lossy(&out.stderr));
     let frames = number_after(&summary, "physics:");
-    assert!(frames > 1000.0, "{frames} frames in 4 s at dt 1 ms");
+    // 4,000 frames at 1 kHz on a quiet machine; the check is that the physics ran, not its
+    // rate (a loaded test machine is slower, and rates are the benchmarks' business).
+    assert!(frames > 200.0, "{frames} frames in 4 s at dt 1 ms");
     assert!(number_after(&summary, "removed") > 0.0, "the scalpel never cut");
     for tool in ["scalpel over iceoryx2:", "grasper over zenoh:"] {
         let line = summary.lines().find(|l| l.starts_with(tool)).expect(tool);
-        assert!(number_after(line, "poses,") > 1000.0, "{line}");
+        assert!(number_after(line, "poses,") > 200.0, "{line}");
         assert!(number_after(line, "max force") > 0.0, "{line}");
     }
     let viewer = summary.lines().find(|l| l.starts_with("a viewer over zenoh:")).unwrap();

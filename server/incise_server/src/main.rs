@@ -71,7 +71,13 @@ fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn")),
+                // Rerun's file sink warns that a file written without its chunk index seeks
+                // slowly; a session's `.rrd` gets the index when the session ends.
+                .unwrap_or_else(|_| {
+                    tracing_subscriber::EnvFilter::new(
+                        "info,zenoh=warn,re_log_encoding::rrd::file_sink=error",
+                    )
+                }),
         )
         .with_writer(std::io::stderr)
         .init();

@@ -45,14 +45,19 @@ pub struct RoundTrips {
 /// The buckets' edges: (upper end of a range in µs, bucket width in µs).
 const RANGES: [(f64, f64); 3] = [(100.0, 0.1), (10_000.0, 1.0), (1_000_000.0, 100.0)];
 
+/// Each range's lower end (µs), bucket width (µs), first bucket and bucket count.
+fn ranges() -> impl Iterator<Item = (f64, f64, usize, usize)> {
+    RANGES.iter().scan((0.0, 0), |(low, first), &(high, width)| {
+        let n = ((high - *low) / width).round() as usize;
+        let range = (*low, width, *first, n);
+        (*low, *first) = (high, *first + n);
+        Some(range)
+    })
+}
+
 impl Default for RoundTrips {
     fn default() -> Self {
-        let mut buckets = 0;
-        let mut low = 0.0;
-        for (high, width) in RANGES {
-            buckets += ((high - low) / width).round() as usize;
-            low = high;
-        }
+        let buckets: usize = ranges().map(|(.., n)| n).sum();
         // One more for everything past the last range.
         Self { counts: vec![0; buckets + 1], count: 0, max_us: 0.0 }
     }
@@ -61,28 +66,21 @@ impl Default for RoundTrips {
 impl RoundTrips {
     /// The bucket `us` falls in.
     fn bucket(us: f64) -> usize {
-        let (mut low, mut first) = (0.0, 0);
-        for (high, width) in RANGES {
-            let n = ((high - low) / width).round() as usize;
-            if us < high {
+        let mut past = 0;
+        for (low, width, first, n) in ranges() {
+            if us < low + n as f64 * width {
                 return first + (((us - low).max(0.0) / width) as usize).min(n - 1);
             }
-            (low, first) = (high, first + n);
+            past = first + n;
         }
-        first
+        past
     }
 
     /// The upper edge of bucket `b` (µs).
     fn upper(b: usize) -> f64 {
-        let (mut low, mut first) = (0.0, 0);
-        for (high, width) in RANGES {
-            let n = ((high - low) / width).round() as usize;
-            if b < first + n {
-                return low + (b - first + 1) as f64 * width;
-            }
-            (low, first) = (high, first + n);
-        }
-        f64::INFINITY
+        ranges()
+            .find(|&(_, _, first, n)| b < first + n)
+            .map_or(f64::INFINITY, |(low, width, first, _)| low + (b - first + 1) as f64 * width)
     }
 
     /// Counts a round trip of `us` microseconds.

@@ -150,9 +150,6 @@ impl RerunLog {
 
     fn scalar(&mut self, path: &str, frame: u64, sim_time_s: f64, values: &[f64]) {
         self.series.push(path, frame, sim_time_s, values);
-        if self.series.frames >= self.series_frames {
-            self.send_series();
-        }
     }
 
     /// Sends the buffered time series, a chunk per entity.
@@ -201,6 +198,9 @@ impl RerunLog {
             self.scalar("plots/frame_rate_hz", frame, t, &[s.frame_rate_hz]);
         }
         self.series.frames += 1;
+        if self.series.frames >= self.series_frames {
+            self.send_series();
+        }
     }
 
     /// A cut, as a line of the event log.
@@ -321,9 +321,7 @@ impl RerunLog {
 pub struct IndexedRrd {
     /// Messages re-written.
     pub messages: u64,
-    /// The file's size before and after (bytes).
-    pub bytes_before: u64,
-    /// The file's size with its index.
+    /// The file's size with its index (bytes).
     pub bytes_after: u64,
 }
 
@@ -338,7 +336,6 @@ pub struct IndexedRrd {
 pub fn index_rrd(path: &Path) -> Result<IndexedRrd, String> {
     use std::io::{BufReader, BufWriter, Write as _};
     let err = |what: &str, e: &dyn std::fmt::Display| format!("{}: {what}: {e}", path.display());
-    let bytes_before = std::fs::metadata(path).map_err(|e| err("cannot read", &e))?.len();
     let input = std::fs::File::open(path).map_err(|e| err("cannot read", &e))?;
     let temp = path.with_extension("rrd.indexing");
     let result = (|| {
@@ -367,7 +364,7 @@ pub fn index_rrd(path: &Path) -> Result<IndexedRrd, String> {
     match result {
         Ok(messages) => {
             let bytes_after = std::fs::metadata(path).map_or(0, |m| m.len());
-            Ok(IndexedRrd { messages, bytes_before, bytes_after })
+            Ok(IndexedRrd { messages, bytes_after })
         }
         Err(e) => {
             let _ = std::fs::remove_file(&temp);

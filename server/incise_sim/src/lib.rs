@@ -53,6 +53,7 @@ pub mod simulation;
 
 pub use config::{SceneConfig, SceneError};
 pub use simulation::{
-    CutError, CutEvent, Frame, Geometry, InputError, OrganSurface, Simulation, StageCounters,
-    StepInputs, SurfaceGeometry, SurgicalFrame, ToolFrame, ToolInput,
+    CutError, CutEvent, Frame, Geometry, InputError, KEYFRAME_INTERVAL_S, Keyframe, KeyframeError,
+    OrganSurface, Simulation, StageCounters, StepInputs, SurfaceGeometry, SurgicalFrame, ToolFrame,
+    ToolInput, ToolState,
 };

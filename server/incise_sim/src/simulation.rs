@@ -26,7 +26,10 @@ use incise_math::Vec3;
 use incise_mesh::{TetMesh, TetTopology};
 use std::time::Instant;
 
+mod keyframe;
 mod surgery;
+
+pub use keyframe::{KEYFRAME_INTERVAL_S, Keyframe, KeyframeError, ToolState};
 
 pub use surgery::{CutEvent, OrganSurface, SurfaceGeometry, SurgicalFrame, ToolFrame, ToolInput};
 use surgery::{Surgery, ToolSprings};
@@ -607,6 +610,9 @@ impl Simulation {
         surgical: SurgicalFrame,
     ) -> Frame {
         self.index += 1;
+        if self.is_keyframe(self.index) {
+            self.settle_for_keyframe();
+        }
         counters.step_ns = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
         Frame {
             index: self.index,

@@ -88,6 +88,26 @@ impl ContactMemory {
         Self { directions }
     }
 
+    /// Every remembered `(vertex, direction)`, sorted by vertex (a snapshot of the state).
+    #[must_use]
+    pub fn entries(&self) -> &[(u32, Vec3)] {
+        &self.directions
+    }
+
+    /// A memory from [`Self::entries`].
+    ///
+    /// # Errors
+    /// When the vertices are not strictly ascending.
+    pub fn from_entries(directions: Vec<(u32, Vec3)>) -> Result<Self, String> {
+        if let Some(w) = directions.windows(2).find(|w| w[0].0 >= w[1].0) {
+            return Err(format!(
+                "contact memory vertices not ascending ({} then {})",
+                w[0].0, w[1].0
+            ));
+        }
+        Ok(Self { directions })
+    }
+
     /// The direction vertex `id` was pushed in at the last frame.
     #[must_use]
     pub fn direction(&self, id: u32) -> Option<Vec3> {

@@ -75,6 +75,13 @@ impl Grasp {
         self.closed
     }
 
+    /// Jaws `closed` or not, holding `held` (as [`Self::is_closed`] and [`Self::held`] gave
+    /// them: a snapshot of the state).
+    #[must_use]
+    pub fn restored(closed: bool, held: Vec<Held>) -> Self {
+        Self { closed, held }
+    }
+
     /// The points held, in the order they were taken.
     #[must_use]
     pub fn held(&self) -> &[Held] {

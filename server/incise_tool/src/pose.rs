@@ -74,6 +74,16 @@ impl Pose {
         Ok(Self { position, rotation, matrix: rotation.to_matrix() })
     }
 
+    /// A pose exactly as [`Self::position`] and [`Self::rotation`] gave it: the rotation is not
+    /// normalised again, so a restored pose has the same bits as the one saved. Unchecked, like
+    /// [`Self::at`].
+    #[must_use]
+    pub fn restored(position: Vec3, rotation: [f64; 4]) -> Self {
+        let [w, x, y, z] = rotation;
+        let rotation = Quat { w, v: [x, y, z] };
+        Self { position, rotation, matrix: rotation.to_matrix() }
+    }
+
     /// A translation only. Unchecked (for positions the program computes): a NaN or infinite
     /// coordinate makes a pose that `Simulation::step` refuses; a position from outside goes
     /// through [`Self::new`].

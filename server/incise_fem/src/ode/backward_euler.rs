@@ -137,6 +137,38 @@ impl BackwardEuler {
         self.solver.topology_changed(same_nodes);
     }
 
+    /// The last steps' velocity changes, the most recent first: the next solve's warm start.
+    #[must_use]
+    pub fn warm_start(&self) -> &[Vec<Vec3>] {
+        &self.history
+    }
+
+    /// Sets the warm start (restoring a snapshot of the state) and drops what the linear solver
+    /// keeps ([`Self::drop_kept`]).
+    ///
+    /// # Errors
+    /// With more than the integrator keeps, or vectors of other lengths than `nodes`.
+    pub fn set_warm_start(&mut self, history: Vec<Vec<Vec3>>, nodes: usize) -> Result<(), String> {
+        if history.len() > HISTORY {
+            return Err(format!("{} warm-start steps; at most {HISTORY} are kept", history.len()));
+        }
+        if let Some(bad) = history.iter().find(|h| h.len() != nodes) {
+            return Err(format!("a warm-start step of {} nodes for {nodes}", bad.len()));
+        }
+        self.history = history;
+        self.solver.reset();
+        Ok(())
+    }
+
+    /// Drops what the linear solver keeps between steps (block-Jacobi blocks, a factor and its
+    /// renewal cycle), keeping the warm start: the next step builds them from the state alone.
+    /// What it keeps depends on the rotations of the step that built it, which a snapshot of
+    /// the state does not hold; a simulation drops it at each keyframe so that a replay
+    /// restored there steps as the session did.
+    pub fn drop_kept(&mut self) {
+        self.solver.reset();
+    }
+
     /// Forgets the warm start and the factorisation (after the topology changed).
     pub fn reset_warm_start(&mut self) {
         self.history.clear();

@@ -82,6 +82,27 @@ pub struct CentralDifference {
 }
 
 impl CentralDifference {
+    /// The positions at the previous step, which the next step differences against.
+    #[must_use]
+    pub fn previous(&self) -> &[Vec3] {
+        &self.previous
+    }
+
+    /// Sets the positions at the previous step (restoring a snapshot of the state).
+    ///
+    /// # Errors
+    /// When their count is not the current one's (the vertex count).
+    pub fn set_previous(&mut self, previous: &[Vec3]) -> Result<(), String> {
+        if previous.len() != self.previous.len() {
+            return Err(format!(
+                "{} previous positions for {} vertices",
+                previous.len(),
+                self.previous.len()
+            ));
+        }
+        self.previous.copy_from_slice(previous);
+        Ok(())
+    }
     /// An integrator at rest in `x` with step `dt` and mass damping `alpha` (1/s).
     pub fn new(
         model: &TetModel,

@@ -315,6 +315,31 @@ impl HexForceField {
         &self.frames[e].r
     }
 
+    /// Every element's rotation as the next extraction starts from it: the quaternion
+    /// `(w, x, y, z)` and the matrix (a snapshot of the state; [`Self::set_rotations`]).
+    #[must_use]
+    pub fn rotations(&self) -> Vec<([f64; 4], Mat3)> {
+        self.frames.iter().map(|f| ([f.q.w, f.q.v[0], f.q.v[1], f.q.v[2]], f.r)).collect()
+    }
+
+    /// Sets every element's rotation as [`Self::rotations`] gave them.
+    ///
+    /// # Errors
+    /// With a count other than the element count.
+    pub fn set_rotations(&mut self, rotations: &[([f64; 4], Mat3)]) -> Result<(), String> {
+        if rotations.len() != self.frames.len() {
+            return Err(format!(
+                "{} rotations for {} elements",
+                rotations.len(),
+                self.frames.len()
+            ));
+        }
+        for (f, &([w, x, y, z], r)) in self.frames.iter_mut().zip(rotations) {
+            *f = Frame { q: Quat { w, v: [x, y, z] }, r };
+        }
+        Ok(())
+    }
+
     /// The shape-function gradients element `e`'s rotation is taken at (`F = Σₐ xₐ ⊗ ∇Nₐ`).
     pub(crate) fn rotation_gradient(&self, e: usize) -> &[Vec3; 8] {
         self.off_centre[e].as_deref().unwrap_or(&self.centre_gradient)

@@ -656,6 +656,66 @@ impl TensorMassForceField {
         count
     }
 
+    /// Adaptive: which vertices are non-linear now (`None` without adaptive non-linearity).
+    #[must_use]
+    pub fn nonlinear_vertices(&self) -> Option<&[bool]> {
+        self.adaptive.as_ref().map(|a| a.flags.as_slice())
+    }
+
+    /// Adaptive: the cubic and quartic tables built again from the non-linear vertices alone,
+    /// the live tetrahedra of `topo` added in index order. The tables are sums kept as vertices
+    /// switch, so their bits depend on the order of every switch since the start; after this
+    /// they depend only on which vertices are non-linear, which is what a state snapshot keeps
+    /// (see `incise_sim`'s keyframes). No-op without adaptive non-linearity.
+    pub fn rebuild_adaptive_tables(&mut self, model: &TetModel, topo: &TetTopology) {
+        let Some(state) = self.adaptive.as_ref() else { return };
+        let on: Vec<usize> = (0..state.tet_count.len())
+            .filter(|&t| state.tet_count[t] > 0 && topo.is_alive(t))
+            .collect();
+        self.cubic.clear();
+        self.quartic.clear();
+        for t in on {
+            self.switch_tet(model, topo, t, true);
+        }
+        self.refresh_active();
+    }
+
+    /// Adaptive: sets which vertices are non-linear (one flag per vertex) and builds the tables
+    /// for them ([`Self::rebuild_adaptive_tables`]).
+    ///
+    /// # Errors
+    /// Without adaptive non-linearity, or with a flag count other than the vertex count.
+    pub fn set_nonlinear_vertices(
+        &mut self,
+        model: &TetModel,
+        topo: &TetTopology,
+        flags: &[bool],
+    ) -> Result<(), String> {
+        let Some(state) = self.adaptive.as_mut() else {
+            return Err("the field has no adaptive non-linearity".into());
+        };
+        if flags.len() != state.flags.len() {
+            return Err(format!(
+                "{} non-linear flags for {} vertices",
+                flags.len(),
+                state.flags.len()
+            ));
+        }
+        state.flags = flags.to_vec();
+        state.nonlinear = flags.iter().filter(|&&f| f).count();
+        state.tet_count.fill(0);
+        for (v, tets) in state.vertex_tets.iter().enumerate() {
+            if flags[v] {
+                for &t in tets {
+                    state.tet_count[t as usize] += 1;
+                }
+            }
+        }
+        state.changed.clear();
+        self.rebuild_adaptive_tables(model, topo);
+        Ok(())
+    }
+
     /// Adds (`on`) or subtracts tetrahedron `t`'s cubic and quartic terms.
     fn switch_tet(&mut self, model: &TetModel, topo: &TetTopology, t: usize, on: bool) {
         let terms = tet_terms(model, topo, t, Elasticity::StVenantKirchhoff);

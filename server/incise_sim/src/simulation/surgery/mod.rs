@@ -14,6 +14,7 @@ mod surface;
 
 pub use surface::OrganSurface;
 
+use super::keyframe::ToolState;
 use super::{CutError, InputError, Simulation, StageCounters, StepInputs};
 use crate::config::{Cutting, ShapeSpec, ToolSpec};
 use cut::DeformedGrid;
@@ -223,6 +224,32 @@ impl Surgery {
             })
             .collect::<Result<Vec<_>, String>>()?;
         Ok(Self { rigs, surface, positions: Vec::new() })
+    }
+
+    /// Each tool's part of a keyframe.
+    pub(crate) fn tool_states(&self) -> Vec<ToolState> {
+        self.rigs
+            .iter()
+            .map(|rig| ToolState {
+                pose: rig.pose,
+                memory: rig.memory.clone(),
+                grasp: rig.grasp.clone(),
+            })
+            .collect()
+    }
+
+    /// Restores each tool's part of a keyframe.
+    pub(crate) fn restore_tools(&mut self, tools: &[ToolState]) -> Result<(), String> {
+        if tools.len() != self.rigs.len() {
+            return Err(format!("{} tools for the scene's {}", tools.len(), self.rigs.len()));
+        }
+        for (rig, state) in self.rigs.iter_mut().zip(tools) {
+            // The next step moves `pose` to `previous` before it takes the new pose.
+            rig.pose = state.pose;
+            rig.memory = state.memory.clone();
+            rig.grasp = state.grasp.clone();
+        }
+        Ok(())
     }
 
     /// The tools' count.

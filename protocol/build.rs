@@ -19,7 +19,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let descriptors = protox::compile(PROTOS, ["proto"])?;
     let out = PathBuf::from(std::env::var("OUT_DIR")?);
-    std::fs::write(out.join("incise_v1_descriptor_set.bin"), descriptors.encode_to_vec())?;
+    // Recordings embed the set once per channel's schema: without the comments (source info),
+    // which decoding does not use, it is a quarter of the size. The generated code keeps them
+    // as doc comments.
+    let mut embedded = descriptors.clone();
+    for file in &mut embedded.file {
+        file.source_code_info = None;
+    }
+    std::fs::write(out.join("incise_v1_descriptor_set.bin"), embedded.encode_to_vec())?;
     prost_build::Config::new().compile_fds(descriptors)?;
     Ok(())
 }

@@ -455,9 +455,10 @@ fn play(
             .step(&StepInputs { tools, ..StepInputs::default() })
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         if let (Some(recorder), Some(raw)) = (recorder, raw) {
-            use incise_server::physics::{frame_record, frame_stats};
+            use incise_server::physics::{frame_record, frame_stats, record_state};
             let stats = frame_stats(&frame, sim, step_started.elapsed(), 0.0);
             recorder.record(incise_record::Record::Frame(frame_record(&frame, &raw, stats)));
+            record_state(recorder, sim, &frame);
             if let Some(surface) = clock.surface(sim, &frame) {
                 recorder.record(incise_record::Record::Surface(surface));
             }

@@ -9,6 +9,8 @@
 //! | `/incise/frame` | `incise.v1.FrameRecord` | every physics frame: the tool poses it used, each tool's force and contact, a hash of the state it left, its statistics |
 //! | `/incise/cut` | `incise.v1.CutEvent` | every cut |
 //! | `/incise/force` | `incise.v1.SentForce` | every force the haptic loop sent, with the frame of the snapshot it extrapolated |
+//! | `/incise/edit` | `incise.v1.TopologyEdit` | every frame that cut: the voxels removed, links severed or tetrahedra removed |
+//! | `/incise/keyframe` | `incise.v1.Keyframe` | once a second of simulated time: the whole state a replay restores to start there (with the edits before it) |
 //! | `/incise/surface` | `incise.v1.SurfaceMesh` | the organ's surface: whole on the first frame and once a second (keyframes); every vertex's position at the geometry rate; each topology change on the frame that made it |
 //! | `/foxglove/scene` | `foxglove.SceneUpdate` | the organ (a triangle list per tissue label) and the tools with their force arrows, every [`Session::scene_interval_s`] of simulated time |
 //! | `/foxglove/tools/<name>/pose` | `foxglove.PoseInFrame` | every frame's pose of each tool |
@@ -36,10 +38,10 @@ pub mod rerun_log;
 pub mod visual;
 
 pub use mcap_file::{
-    CUT_TOPIC, FORCE_TOPIC, FRAME_TOPIC, McapRecording, POSE_TOPIC_PREFIX, RecordError,
-    SCENE_TOPIC, SURFACE_TOPIC, Session,
+    CUT_TOPIC, EDIT_TOPIC, FORCE_TOPIC, FRAME_TOPIC, KEYFRAME_TOPIC, McapRecording,
+    POSE_TOPIC_PREFIX, RecordError, SCENE_TOPIC, SURFACE_TOPIC, Session,
 };
-pub use read::{Contents, ReadError, read_recording};
+pub use read::{Contents, ReadError, read_recording, read_recording_at};
 pub use recorder::{
     CHUNK_FRAMES, CHUNK_INTERVAL, Record, RecordHandle, Recorder, RecorderStats, Sinks,
 };

@@ -19,6 +19,11 @@ pub const FORCE_TOPIC: &str = "/incise/force";
 /// second; in between, every vertex's position at the geometry rate, and each topology change
 /// (new triangles and vertices, freed ids) on the frame that made it.
 pub const SURFACE_TOPIC: &str = "/incise/surface";
+/// The topic of every frame's topology change, `incise.v1.TopologyEdit` (frames that cut).
+pub const EDIT_TOPIC: &str = "/incise/edit";
+/// The topic of the keyframes, `incise.v1.Keyframe`: the whole state once a second of simulated
+/// time, where a replay starts in the middle of a session.
+pub const KEYFRAME_TOPIC: &str = "/incise/keyframe";
 /// The topic of the scene in Foxglove's schema (`foxglove.SceneUpdate`): the organ and the
 /// tools with their force arrows.
 pub const SCENE_TOPIC: &str = "/foxglove/scene";
@@ -75,6 +80,8 @@ pub struct McapRecording {
     cut_channel: u16,
     surface_channel: u16,
     force_channel: u16,
+    edit_channel: u16,
+    keyframe_channel: u16,
     scene_channel: u16,
     pose_channels: Vec<u16>,
     tools: Vec<ToolLook>,
@@ -113,6 +120,8 @@ impl McapRecording {
         let cut_channel = channel("incise.v1.CutEvent", CUT_TOPIC)?;
         let surface_channel = channel("incise.v1.SurfaceMesh", SURFACE_TOPIC)?;
         let force_channel = channel("incise.v1.SentForce", FORCE_TOPIC)?;
+        let edit_channel = channel("incise.v1.TopologyEdit", EDIT_TOPIC)?;
+        let keyframe_channel = channel("incise.v1.Keyframe", KEYFRAME_TOPIC)?;
         let scene_channel = channel("foxglove.SceneUpdate", SCENE_TOPIC)?;
         let pose_channels = session
             .tools
@@ -158,6 +167,8 @@ impl McapRecording {
             cut_channel,
             surface_channel,
             force_channel,
+            edit_channel,
+            keyframe_channel,
             scene_channel,
             pose_channels,
             tools: session.tools.clone(),
@@ -248,6 +259,20 @@ impl McapRecording {
     /// Writes a cut, made at simulated time `sim_time_s`.
     pub fn cut(&mut self, cut: &v1::CutEvent, sim_time_s: f64) -> Result<(), RecordError> {
         self.write(self.cut_channel, sim_time_s, &cut.encode_to_vec())
+    }
+
+    /// Writes the topology change a frame made, at simulated time `sim_time_s`.
+    pub fn edit(&mut self, edit: &v1::TopologyEdit, sim_time_s: f64) -> Result<(), RecordError> {
+        self.write(self.edit_channel, sim_time_s, &edit.encode_to_vec())
+    }
+
+    /// Writes a keyframe, at simulated time `sim_time_s`.
+    pub fn keyframe(
+        &mut self,
+        keyframe: &v1::Keyframe,
+        sim_time_s: f64,
+    ) -> Result<(), RecordError> {
+        self.write(self.keyframe_channel, sim_time_s, &keyframe.encode_to_vec())
     }
 
     /// Closes the open chunk and flushes it to the file: what is written survives a crash.

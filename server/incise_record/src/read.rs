@@ -3,7 +3,9 @@
 //! a file that is not MCAP, not incise's, or of another protocol version is refused with a
 //! message that says which.
 
-use crate::mcap_file::{CUT_TOPIC, FORCE_TOPIC, FRAME_TOPIC, SURFACE_TOPIC};
+use crate::mcap_file::{
+    CUT_TOPIC, EDIT_TOPIC, FORCE_TOPIC, FRAME_TOPIC, KEYFRAME_TOPIC, SURFACE_TOPIC,
+};
 use incise_protocol::v1;
 use prost::Message;
 use std::collections::BTreeMap;
@@ -23,6 +25,13 @@ pub struct Contents {
     pub forces: Vec<v1::SentForce>,
     /// Every surface frame, with its log time (simulated ns).
     pub surfaces: Vec<(v1::SurfaceMesh, u64)>,
+    /// Every frame's topology change, in order.
+    pub edits: Vec<v1::TopologyEdit>,
+    /// The frames that have a keyframe, in order.
+    pub keyframe_frames: Vec<u64>,
+    /// The last keyframe at or before the frame [`read_recording_at`] was asked for (a keyframe
+    /// is large, so only that one is kept; `None` from [`read_recording`]).
+    pub keyframe: Option<v1::Keyframe>,
     /// The scene's TOML, when attached.
     pub scene_toml: Option<String>,
     /// The files the scene reads, stored beside it (name as the scene writes it, bytes).
@@ -70,12 +79,19 @@ pub enum ReadError {
     },
 }
 
-/// Reads `bytes` as a recording (see the module's description of what is refused).
+/// Reads `bytes` as a recording (see the module's description of what is refused), keeping no
+/// keyframe.
 pub fn read_recording(bytes: &[u8]) -> Result<Contents, ReadError> {
+    read_recording_at(bytes, None)
+}
+
+/// [`read_recording`], keeping the last keyframe at or before frame `seek` (when given) in
+/// [`Contents::keyframe`].
+pub fn read_recording_at(bytes: &[u8], seek: Option<u64>) -> Result<Contents, ReadError> {
     let options = mcap::read::Options::IgnoreEndMagic.into();
     let records = mcap::read::LinearReader::new_with_options(bytes, options)
         .map_err(|e| ReadError::NotMcap(e.to_string()))?;
-    let mut reading = Reading::default();
+    let mut reading = Reading { seek, ..Reading::default() };
     let mut seen_any = false;
     for record in records {
         let record = match record {
@@ -159,6 +175,14 @@ struct Reading {
     topics: BTreeMap<u16, String>,
     messages: usize,
     chunks: usize,
+    seek: Option<u64>,
+}
+
+/// A keyframe's frame number alone: decoding it skips the state.
+#[derive(Clone, PartialEq, prost::Message)]
+struct KeyframeHead {
+    #[prost(uint64, tag = "1")]
+    frame: u64,
 }
 
 impl Reading {
@@ -192,6 +216,18 @@ impl Reading {
                         v1::SurfaceMesh::decode(&*data).map_err(|e| bad(e.to_string()))?,
                         header.log_time,
                     )),
+                    EDIT_TOPIC => self
+                        .contents
+                        .edits
+                        .push(v1::TopologyEdit::decode(&*data).map_err(|e| bad(e.to_string()))?),
+                    KEYFRAME_TOPIC => {
+                        let head = KeyframeHead::decode(&*data).map_err(|e| bad(e.to_string()))?;
+                        self.contents.keyframe_frames.push(head.frame);
+                        if self.seek.is_some_and(|seek| head.frame <= seek) {
+                            self.contents.keyframe =
+                                Some(v1::Keyframe::decode(&*data).map_err(|e| bad(e.to_string()))?);
+                        }
+                    }
                     // Channels a later version adds are not ours to refuse.
                     _ => {}
                 }

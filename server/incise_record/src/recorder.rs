@@ -34,6 +34,10 @@ pub enum Record {
     Cut(v1::CutEvent, f64),
     /// The organ's surface at a frame (after that frame's record).
     Surface(SurfaceFrame),
+    /// The topology change a frame made, at simulated time `.1`.
+    Edit(v1::TopologyEdit, f64),
+    /// A keyframe, at simulated time `.1`.
+    Keyframe(Box<v1::Keyframe>, f64),
 }
 
 /// Where the recorder writes: any of an MCAP file, an `.rrd` file and a live viewer.
@@ -219,6 +223,16 @@ fn write_all(
                     }
                     if let Some(live) = &sinks.live {
                         live.offer(LiveItem::Cut(c, t));
+                    }
+                }
+                Record::Edit(e, t) => {
+                    if let Some(mcap) = &mut sinks.mcap {
+                        mcap.edit(&e, t)?;
+                    }
+                }
+                Record::Keyframe(k, t) => {
+                    if let Some(mcap) = &mut sinks.mcap {
+                        mcap.keyframe(&k, t)?;
                     }
                 }
                 Record::Surface(surface) => {

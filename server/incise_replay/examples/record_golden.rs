@@ -13,6 +13,7 @@
 use anyhow::Context;
 use incise_protocol::raw::RawToolPose;
 use incise_record::{McapRecording, Session};
+use incise_server::keyframe::{edit_message, keyframe_message};
 use incise_server::physics::{cut_event, frame_record, frame_stats, tool_input};
 use incise_sim::{Simulation, StepInputs};
 use std::path::PathBuf;
@@ -120,6 +121,12 @@ fn record(
         recording.frame(&frame_record(&frame, &[raw], stats))?;
         for cut in &frame.surgical.cuts {
             recording.cut(&cut_event(&frame, cut), frame.time)?;
+        }
+        if let Some(edit) = edit_message(&frame) {
+            recording.edit(&edit, frame.time)?;
+        }
+        if sim.is_keyframe(frame.index) {
+            recording.keyframe(&keyframe_message(&sim.keyframe()), frame.time)?;
         }
         if i % 100 == 99 {
             recording.close_chunk()?;

@@ -4,6 +4,10 @@
 //! and build that recorded it, a replay matches bit for bit; elsewhere, `tolerance` compares the
 //! forces within bounds instead (the state hash then cannot match and is not compared).
 //!
+//! A replay of a frame range starts at the last keyframe before it ([`seek`]): the scene is
+//! rebuilt, every frame's recorded topology edit up to the keyframe re-applied, and the
+//! keyframe's state restored, so only the frames after it are stepped.
+//!
 //! [`render`] turns a recording into an `.rrd` file for the Rerun viewer from what it holds
 //! (frames, cuts, the surface), without stepping anything: a frame range starts at the whole
 //! surface (keyframe) at or before it.
@@ -21,8 +25,8 @@ pub struct Compare {
     /// `None`: bit for bit (state hash and forces). `Some(t)`: forces and torques within `t`
     /// (N, N·m), state hash not compared.
     pub tolerance: Option<f64>,
-    /// Compare from this frame on (the frames before it are stepped, not compared: the
-    /// recording holds the state only as each frame's hash, so a replay starts at frame 1).
+    /// Compare from this frame on (the frames between the simulation's frame, see [`seek`],
+    /// and this one are stepped, not compared).
     pub from: Option<u64>,
     /// Stop after this frame.
     pub to: Option<u64>,
@@ -115,8 +119,30 @@ fn unpack_files(contents: &Contents) -> anyhow::Result<(PathBuf, PathBuf)> {
     Ok((dir, base))
 }
 
+/// Brings `sim` (just built by [`simulation`]) to `contents`' keyframe (read by
+/// `incise_record::read_recording_at` with the frame before the first to compare): applies
+/// every recorded topology edit up to it, then restores it. Returns the keyframe's frame, after
+/// which [`replay`] steps; 0 when the contents hold no keyframe (the replay then starts at the
+/// first frame).
+///
+/// # Errors
+/// When an edit or the keyframe does not decode or does not fit the scene (a recording of
+/// another build whose state differs refuses here, at its hash check).
+pub fn seek(contents: &Contents, sim: &mut Simulation) -> anyhow::Result<u64> {
+    use incise_server::keyframe::{edit_from_message, keyframe_from_message};
+    let Some(message) = &contents.keyframe else { return Ok(0) };
+    let keyframe = keyframe_from_message(message).map_err(anyhow::Error::msg)?;
+    for edit in contents.edits.iter().take_while(|e| e.frame <= keyframe.frame) {
+        let (grid, tets) = edit_from_message(edit).map_err(anyhow::Error::msg)?;
+        sim.apply_edit(&grid, &tets)
+            .map_err(|e| anyhow::anyhow!("the recorded edit of frame {}: {e}", edit.frame))?;
+    }
+    sim.restore(&keyframe)?;
+    Ok(keyframe.frame)
+}
+
 /// Replays `contents` on `sim`, calling `progress` after every frame; stops at the first
-/// divergence.
+/// divergence. The frames `sim` has already stepped (or restored, see [`seek`]) are skipped.
 pub fn replay(
     contents: &Contents,
     sim: &mut Simulation,
@@ -126,7 +152,10 @@ pub fn replay(
     let started = Instant::now();
     let mut frames = 0;
     let to = compare.to.unwrap_or(u64::MAX);
-    for record in contents.frames.iter().take_while(|r| r.frame <= to) {
+    let done = sim.frame_index();
+    for record in
+        contents.frames.iter().skip_while(|r| r.frame <= done).take_while(|r| r.frame <= to)
+    {
         let tools = record
             .poses
             .iter()

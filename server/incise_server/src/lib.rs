@@ -14,6 +14,7 @@
 //! - the main thread prints a status line and waits for SIGINT/SIGTERM or the demo's end.
 
 pub mod demo;
+pub mod keyframe;
 pub mod network;
 pub mod physics;
 pub mod scene;

@@ -73,6 +73,7 @@ pub fn run(
                 if let Some(recorder) = recorder {
                     let record = frame_record(&frame, &used, frame_stats);
                     recorder.record(Record::Frame(record));
+                    record_state(recorder, &sim, &frame);
                     if let Some(surface) =
                         geometry.as_mut().and_then(|clock| clock.surface(&sim, &frame))
                     {
@@ -146,14 +147,15 @@ impl GeometryClock {
         let t = frame.time + 1e-6;
         let changes = &frame.surgical.surface;
         let keyframe = t >= self.next_keyframe;
-        let tick = t >= self.next_positions;
+        // At 0 Hz there is no tick at all (only keyframes and topology changes).
+        let tick = self.interval.is_finite() && t >= self.next_positions;
         if !(keyframe || tick || !changes.is_empty()) {
             return None;
         }
         if keyframe {
             self.next_keyframe = (self.next_keyframe + KEYFRAME_INTERVAL_S).max(frame.time);
         }
-        if tick && self.interval.is_finite() {
+        if tick {
             self.next_positions = (self.next_positions + self.interval).max(frame.time);
         }
         let g = if keyframe {
@@ -247,6 +249,18 @@ pub fn tool_input(raw: &RawToolPose) -> Option<ToolInput> {
     let p = check_pose(raw).ok()?;
     let pose = ToolPose::new(p.position, p.orientation, p.gripper_angle).ok()?;
     Some(ToolInput { tool: raw.tool_id as usize, pose })
+}
+
+/// Hands the recorder what a replay needs beyond `frame`'s record: the topology change it made,
+/// and the keyframe when it is a keyframe frame ([`Simulation::is_keyframe`]).
+pub fn record_state(recorder: &RecordHandle, sim: &Simulation, frame: &Frame) {
+    if let Some(edit) = crate::keyframe::edit_message(frame) {
+        recorder.record(Record::Edit(edit, frame.time));
+    }
+    if sim.is_keyframe(frame.index) {
+        let keyframe = crate::keyframe::keyframe_message(&sim.keyframe());
+        recorder.record(Record::Keyframe(Box::new(keyframe), frame.time));
+    }
 }
 
 /// What the recording keeps of a frame: the poses it used, each tool's force and contact, the
@@ -354,5 +368,63 @@ pub fn frame_stats(frame: &Frame, sim: &Simulation, wall: Duration, rate: f64) -
         triangles: sim.surface().map_or(0, incise_sim::OrganSurface::triangle_count) as u32,
         frame_rate_hz: rate,
         solver_iterations: c.solver_iterations as u32,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::GeometryClock;
+    use incise_sim::{SceneConfig, Simulation, StepInputs};
+
+    /// A 2 cm block with a tool (never posed: the surface is there, nothing changes it).
+    const SCENE: &str = r#"name = "clock"
+[volume]
+procedural = "block"
+size_m = [0.02, 0.02, 0.02]
+voxels = [2, 2, 2]
+[[materials]]
+label = 1
+youngs_modulus = 3000.0
+poisson_ratio = 0.45
+density = 1000.0
+[integrator]
+kind = "implicit-euler"
+dt = 0.001
+[[fixed]]
+plane = "z"
+value = 0.0
+[[tools]]
+name = "probe"
+stiffness = 100.0
+outer = { shape = "sphere", radius = 0.002 }
+"#;
+
+    /// The surface frames a clock at `hz` takes over `frames` frames: (frame, whole).
+    fn taken(hz: f64, frames: u64) -> Vec<(u64, bool)> {
+        let config = SceneConfig::from_toml(SCENE, "clock.toml").unwrap();
+        let volume = config.procedural_volume().unwrap();
+        let mut sim = Simulation::new(&config, &volume, "clock.toml").unwrap();
+        let mut clock = GeometryClock::new(hz);
+        (0..frames)
+            .filter_map(|_| {
+                let frame = sim.step(&StepInputs::default()).unwrap();
+                clock.surface(&sim, &frame).map(|s| (s.frame, s.whole))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn at_zero_hz_only_the_keyframes_take_the_surface() {
+        assert_eq!(taken(0.0, 2100), [(1, true), (1000, true), (2000, true)]);
+    }
+
+    #[test]
+    fn at_a_rate_the_positions_are_taken_on_its_ticks_and_whole_on_the_keyframes() {
+        let taken = taken(100.0, 2100);
+        // Ticks every 10 ms from the first frame; the keyframes at 1 s and 2 s fall on ticks.
+        let expected: Vec<(u64, bool)> = std::iter::once((1, true))
+            .chain((10..=2100).step_by(10).map(|f| (f, f % 1000 == 0)))
+            .collect();
+        assert_eq!(taken, expected);
     }
 }

@@ -720,6 +720,12 @@ impl Simulation {
         Ok(removed)
     }
 
+    /// The last frame stepped (or restored from a keyframe); 0 before the first step.
+    #[must_use]
+    pub fn frame_index(&self) -> u64 {
+        self.index
+    }
+
     /// The scene's configuration (with `model.kind = "auto"`, the level is the level chosen).
     #[must_use]
     pub fn config(&self) -> &SceneConfig {

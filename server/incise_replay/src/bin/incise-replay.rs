@@ -24,11 +24,13 @@ struct Cli {
     #[arg(long, value_name = "DIR")]
     scene_dir: Option<PathBuf>,
     /// End with one line of JSON: `frames`, `matched`, `first_divergence`, `replay_fps`,
-    /// `recorded_fps`, `recorded_frames`, `missing_frames`.
+    /// `recorded_fps`, `recorded_frames`, `missing_frames`, `keyframe` (the frame the replay
+    /// started after, 0 for the first).
     #[arg(long)]
     json: bool,
-    /// First frame to compare (and to render with --to-rrd). The frames before it are still
-    /// stepped: the recording keeps the state only as a hash, so a replay starts at frame 1.
+    /// First frame to compare (and to render with --to-rrd). The replay starts at the last
+    /// keyframe before it (one a second of simulated time): the recorded cuts up to it are
+    /// applied and its state restored, and only the frames after it are stepped.
     #[arg(long, value_name = "FRAME")]
     from: Option<u64>,
     /// Last frame to compare (and to render); the replay stops there.
@@ -59,7 +61,10 @@ fn run() -> anyhow::Result<bool> {
     }
     let shown = cli.recording.display();
     let bytes = std::fs::read(&cli.recording).with_context(|| format!("cannot read {shown}"))?;
-    let contents = incise_record::read_recording(&bytes).with_context(|| format!("{shown}"))?;
+    // The keyframe a replay of --from starts at: the last one before that frame.
+    let seek = cli.from.filter(|_| cli.to_rrd.is_none()).map(|f| f.saturating_sub(1));
+    let contents =
+        incise_record::read_recording_at(&bytes, seek).with_context(|| format!("{shown}"))?;
     if let Some(why) = &contents.truncated {
         eprintln!("{shown}: {why}; replaying the {} frames before it", contents.frames.len());
     }
@@ -68,10 +73,11 @@ fn run() -> anyhow::Result<bool> {
         contents.frames.windows(2).map(|w| w[1].frame.saturating_sub(w[0].frame + 1)).sum::<u64>()
             + contents.frames.first().map_or(0, |f| f.frame.saturating_sub(1));
     eprintln!(
-        "{shown}: {} frames, {missing} missing; {} cuts; {} surface frames",
+        "{shown}: {} frames, {missing} missing; {} cuts; {} surface frames; {} keyframes",
         contents.frames.len(),
         contents.cuts.len(),
-        contents.surfaces.len()
+        contents.surfaces.len(),
+        contents.keyframe_frames.len()
     );
     if let (Some(from), Some(to)) = (cli.from, cli.to) {
         anyhow::ensure!(from <= to, "--from {from} is after --to {to}");
@@ -104,7 +110,21 @@ fn run() -> anyhow::Result<bool> {
         .or_else(|| cli.recording.parent().map(PathBuf::from))
         .unwrap_or_default();
     let mut sim = simulation(&contents, &base).with_context(|| format!("{shown}"))?;
-    let total = contents.frames.len() as u64;
+    let keyframe = incise_replay::seek(&contents, &mut sim)
+        .with_context(|| format!("{shown}: starting at the keyframe before --from"))?;
+    if keyframe > 0 {
+        eprintln!(
+            "{shown}: starting after the keyframe of frame {keyframe} ({} recorded edits applied)",
+            contents.edits.iter().filter(|e| e.frame <= keyframe).count()
+        );
+    } else if cli.from.is_some_and(|f| f > 1) {
+        eprintln!("{shown}: no keyframe before --from; stepping from the first frame");
+    }
+    let total = contents
+        .frames
+        .iter()
+        .filter(|r| r.frame > keyframe && r.frame <= cli.to.unwrap_or(u64::MAX))
+        .count() as u64;
     let bar = indicatif::ProgressBar::new(total).with_style(
         indicatif::ProgressStyle::with_template(
             "replaying {bar:40} {pos}/{len} frames ({per_sec}, {eta} left)",
@@ -151,6 +171,7 @@ fn run() -> anyhow::Result<bool> {
             "recorded_fps": 1.0 / dt,
             "recorded_frames": contents.frames.len(),
             "missing_frames": missing,
+            "keyframe": keyframe,
         });
         println!("{json}");
     }

@@ -168,6 +168,14 @@ fn tool_state(t: &v1::ToolKeyState) -> Result<ToolState, String> {
                 t.rotation.len()
             ));
         };
+        // A session only ever steps with checked poses.
+        let finite = position.iter().chain(&rotation).all(|c| c.is_finite());
+        if !(finite && t.gripper.is_finite() && t.gripper >= 0.0) {
+            return Err(format!(
+                "the pose (position {position:?}, rotation {rotation:?}, gripper {}) is not finite",
+                t.gripper
+            ));
+        }
         Some(ToolPose { pose: Pose::restored(position, rotation), gripper: t.gripper })
     } else {
         None

@@ -5,11 +5,23 @@
 
 mod common;
 
+use std::os::unix::process::CommandExt;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// A receiver's process group, killed when dropped.
+struct Receiver(std::process::Child);
+
+impl Drop for Receiver {
+    fn drop(&mut self) {
+        let group = format!("-{}", self.0.id());
+        let _ = Command::new("kill").args(["-KILL", "--", &group]).status();
+        let _ = self.0.wait();
+    }
 }
 
 #[test]
@@ -23,13 +35,18 @@ fn a_live_stream_reaches_a_rerun_endpoint() {
     assert!(Command::new(&rerun).args(["analytics", "disable"]).output().unwrap().status.success());
     let port = free_port();
     let saved = dir.join("live.rrd");
-    let mut receiver = Command::new(&rerun)
-        .args(["--bind", "127.0.0.1", "--port", &port.to_string(), "--save"])
-        .arg(&saved)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    // `rerun` is a Python script that runs Rerun's own binary as a child: the receiver gets a
+    // process group of its own, and the whole group is killed (also when the test fails).
+    let receiver = Receiver(
+        Command::new(&rerun)
+            .args(["--bind", "127.0.0.1", "--port", &port.to_string(), "--save"])
+            .arg(&saved)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .process_group(0)
+            .spawn()
+            .unwrap(),
+    );
     let until = Instant::now() + Duration::from_mins(1);
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
         assert!(Instant::now() < until, "rerun never listened on {port}");
@@ -59,8 +76,7 @@ fn a_live_stream_reaches_a_rerun_endpoint() {
         }
         last = size;
     }
-    receiver.kill().unwrap();
-    receiver.wait().unwrap();
+    drop(receiver);
     // Killed, the receiver leaves no footer; the chunks before it are whole.
     let out = Command::new(&rerun)
         .args(["rrd", "print", "--continue-on-error=true"])

@@ -133,7 +133,8 @@ fn main() -> anyhow::Result<()> {
             "--duration must be a positive number of seconds"
         );
         let duration = Duration::from_secs_f64(cli.duration);
-        let (running, reports, watched) = incise_server::demo::run(&options, duration)?;
+        let (mut running, reports, watched) = incise_server::demo::run(&options, duration)?;
+        running.stop_physics();
         println!("{}", incise_server::demo::summary(&running, &reports, &watched, duration));
         let recording = running.recording().map(|p| p.display().to_string());
         running.stop();

@@ -78,6 +78,9 @@ pub struct Running {
     /// Resident memory once running (MB).
     rss_at_start_mb: Option<f64>,
     stop: Arc<AtomicBool>,
+    /// The physics thread's own stop flag and the thread, stopped first ([`Running::stop_physics`]).
+    physics_stop: Arc<AtomicBool>,
+    physics_thread: Option<JoinHandle<()>>,
     threads: Vec<JoinHandle<()>>,
     zenoh_sender: Option<Thread>,
 }
@@ -241,16 +244,21 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         }
         thread
     });
-    threads.push({
+    let physics_stop = Arc::new(AtomicBool::new(false));
+    let physics_thread = {
         let record = recorder.as_ref().map(Recorder::handle);
         let clock = physics::GeometryClock::new(options.geometry_hz);
-        let (shared, outbox, stats, stop) =
-            (Arc::clone(&shared), network.outbox(), Arc::clone(&physics_stats), Arc::clone(&stop));
+        let (shared, outbox, stats, stop) = (
+            Arc::clone(&shared),
+            network.outbox(),
+            Arc::clone(&physics_stats),
+            Arc::clone(&physics_stop),
+        );
         std::thread::Builder::new().name("incise-physics".into()).spawn(move || {
             let recording = record.as_ref().map(|r| (r, clock));
             physics::run(sim, &shared, &outbox, recording, &stats, &stop);
         })?
-    });
+    };
     Ok(Running {
         keys,
         tools,
@@ -264,14 +272,27 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         started: std::time::Instant::now(),
         rss_at_start_mb: resident_mb(),
         stop,
+        physics_stop,
+        physics_thread: Some(physics_thread),
         threads,
         zenoh_sender,
     })
 }
 
 impl Running {
+    /// Stops the physics (the last frame it stepped is the last one recorded) and waits for it;
+    /// the transports and the haptic loop go on until [`Self::stop`]. What a summary of the
+    /// session reads after this counts the frames the recording holds.
+    pub fn stop_physics(&mut self) {
+        self.physics_stop.store(true, Ordering::Release);
+        if let Some(t) = self.physics_thread.take() {
+            let _ = t.join();
+        }
+    }
+
     /// Stops every thread and closes the transports.
-    pub fn stop(self) {
+    pub fn stop(mut self) {
+        self.stop_physics();
         self.stop.store(true, Ordering::Release);
         self.shared.stop();
         if let Some(t) = &self.zenoh_sender {

@@ -56,6 +56,16 @@ fn vec3s(values: &[f64], what: &str) -> Result<Vec<Vec3>, String> {
     Ok(values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
 }
 
+/// Surface vertices paired with a 3-vector each (`values`, three per vertex), or an error
+/// naming `what`.
+fn per_vertex(ids: &[u32], values: &[f64], what: &str) -> Result<Vec<(u32, Vec3)>, String> {
+    let vectors = vec3s(values, what)?;
+    if vectors.len() != ids.len() {
+        return Err(format!("{} {what} for {} vertices", vectors.len(), ids.len()));
+    }
+    Ok(ids.iter().copied().zip(vectors).collect())
+}
+
 /// `keyframe` as its message.
 #[must_use]
 pub fn keyframe_message(keyframe: &Keyframe) -> v1::Keyframe {
@@ -180,25 +190,14 @@ fn tool_state(t: &v1::ToolKeyState) -> Result<ToolState, String> {
     } else {
         None
     };
-    let directions = vec3s(&t.memory_directions, "contact directions")?;
-    if directions.len() != t.memory_vertices.len() {
-        return Err(format!(
-            "{} contact directions for {} vertices",
-            directions.len(),
-            t.memory_vertices.len()
-        ));
-    }
-    let memory =
-        ContactMemory::from_entries(t.memory_vertices.iter().copied().zip(directions).collect())?;
-    let anchors = vec3s(&t.held_anchors, "held anchors")?;
-    if anchors.len() != t.held_vertices.len() {
-        return Err(format!(
-            "{} anchors for {} held vertices",
-            anchors.len(),
-            t.held_vertices.len()
-        ));
-    }
-    let held =
-        t.held_vertices.iter().zip(anchors).map(|(&id, anchor)| Held { id, anchor }).collect();
+    let memory = ContactMemory::from_entries(per_vertex(
+        &t.memory_vertices,
+        &t.memory_directions,
+        "contact directions",
+    )?)?;
+    let held = per_vertex(&t.held_vertices, &t.held_anchors, "held anchors")?
+        .into_iter()
+        .map(|(id, anchor)| Held { id, anchor })
+        .collect();
     Ok(ToolState { pose, memory, grasp: Grasp::restored(t.jaws_closed, held) })
 }

@@ -113,9 +113,9 @@ pub fn run(
     }
 }
 
-/// Simulated time between two whole surfaces in a recording (s): where a viewer seeking to a
-/// time finds the topology.
-pub const KEYFRAME_INTERVAL_S: f64 = 1.0;
+/// Simulated time between two whole surfaces in a recording (s): the state keyframes' interval,
+/// so a viewer seeking to a time finds the topology where a replay finds the state.
+pub use incise_sim::KEYFRAME_INTERVAL_S;
 
 /// The default rate at which a recording takes the organ's surface (Hz of simulated time).
 pub const DEFAULT_GEOMETRY_HZ: f64 = 60.0;

@@ -217,15 +217,15 @@ impl Simulation {
                 keyframe.v.len()
             )));
         }
-        match (&mut self.body, &mut self.surgery) {
-            (_, None) if !keyframe.tools.is_empty() => {
+        match &mut self.surgery {
+            Some(surgery) => surgery.restore_tools(&keyframe.tools).map_err(&fail)?,
+            None if !keyframe.tools.is_empty() => {
                 return Err(fail(format!(
                     "{} tools in a scene without tools",
                     keyframe.tools.len()
                 )));
             }
-            (_, Some(surgery)) => surgery.restore_tools(&keyframe.tools).map_err(&fail)?,
-            _ => {}
+            None => {}
         }
         match &mut self.body {
             Body::Hex(hex) => {

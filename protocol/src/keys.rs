@@ -8,6 +8,7 @@
 //! incise/v1/<scene>/cut                CutEvent, when a tool cuts
 //! incise/v1/<scene>/surface            SurfaceMesh, full or delta
 //! incise/v1/<scene>/info               SceneInfo, a zenoh queryable (answered on request)
+//! incise/v1/<scene>/stats              ServerStats, a zenoh queryable (answered on request)
 //! incise/v1/<scene>/tool/poses         iceoryx2 event: a client published poses
 //! ```
 //!
@@ -110,6 +111,12 @@ impl Keys {
         format!("{ROOT}/{}/info", self.scene)
     }
 
+    /// The server's statistics (queried).
+    #[must_use]
+    pub fn stats(&self) -> String {
+        format!("{ROOT}/{}/stats", self.scene)
+    }
+
     /// The tool id in a key of [`Self::tool_pose`]'s form, if `key` is one of this scene's.
     #[must_use]
     pub fn tool_of_pose_key(&self, key: &str) -> Option<u32> {
@@ -136,6 +143,7 @@ mod tests {
         assert_eq!(k.cut(), "incise/v1/liver_13k/cut");
         assert_eq!(k.surface(), "incise/v1/liver_13k/surface");
         assert_eq!(k.info(), "incise/v1/liver_13k/info");
+        assert_eq!(k.stats(), "incise/v1/liver_13k/stats");
         assert_eq!(k.poses_ready(), "incise/v1/liver_13k/tool/poses");
     }
 

@@ -296,11 +296,7 @@ pub fn echo(role: &EchoRole) -> anyhow::Result<()> {
                 &keys,
                 1,
                 &info,
-                &Endpoints {
-                    listen: vec![role.listen.clone()],
-                    connect: Vec::new(),
-                    multicast_scouting: false,
-                },
+                &Endpoints { listen: vec![role.listen.clone()], ..Endpoints::default() },
                 handler,
                 faults,
             )?;
@@ -321,11 +317,7 @@ pub fn echo(role: &EchoRole) -> anyhow::Result<()> {
 pub fn serve(role: &ServerRole) -> anyhow::Result<()> {
     let scene = incise_scene::read_scene(role.scene.as_ref())?;
     let options = Options {
-        zenoh: Some(Endpoints {
-            listen: vec![role.listen.clone()],
-            connect: Vec::new(),
-            multicast_scouting: false,
-        }),
+        zenoh: Some(Endpoints { listen: vec![role.listen.clone()], ..Endpoints::default() }),
         ..Options::default()
     };
     let running = server::start(&scene, &role.scene, &options)?;

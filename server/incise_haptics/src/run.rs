@@ -66,6 +66,18 @@ pub struct Counters {
     pub handovers: AtomicU64,
 }
 
+/// One tool's pose counts.
+#[derive(Debug, Default)]
+pub struct ToolCounts {
+    /// Poses accepted (checked, in order, from the session driving the tool).
+    pub poses: AtomicU64,
+    /// Poses missing: gaps in the sequence numbers of a session's accepted stream, i.e. poses
+    /// its driver sent that never arrived (dropped by the network, or sent while it was down).
+    /// They are counted when the stream goes on, and never used: a pose that turned up after a
+    /// newer one would go back in time and be refused.
+    pub missing: AtomicU64,
+}
+
 /// What the haptic thread shares with the physics thread and the transports.
 #[derive(Debug)]
 pub struct LoopShared {
@@ -77,6 +89,11 @@ pub struct LoopShared {
     stamps: Vec<[AtomicU64; SOURCES]>,
     /// Per tool: the session driving it ([`driver`]; 0: none yet) and its last pose's arrival.
     drivers: Vec<(AtomicU64, AtomicU64)>,
+    /// Per tool, per source: the newest accepted pose's driver and sequence number (written by
+    /// the source's thread only), to count the poses a stream lost.
+    sequences: Vec<[(AtomicU64, AtomicU64); SOURCES]>,
+    /// Per tool: poses accepted, and poses missing from accepted streams.
+    pub tool_counts: Vec<ToolCounts>,
     forces: Vec<SeqCell<FORCE_WORDS>>,
     /// The loop's clock's origin.
     epoch: Instant,
@@ -100,6 +117,8 @@ impl LoopShared {
             poses: (0..tools).map(|_| Default::default()).collect(),
             stamps: (0..tools).map(|_| Default::default()).collect(),
             drivers: (0..tools).map(|_| Default::default()).collect(),
+            sequences: (0..tools).map(|_| Default::default()).collect(),
+            tool_counts: (0..tools).map(|_| ToolCounts::default()).collect(),
             forces: (0..tools).map(|_| SeqCell::default()).collect(),
             epoch: Instant::now(),
             thread: std::sync::OnceLock::new(),
@@ -182,7 +201,21 @@ impl LoopShared {
         }
         stamp.store(pose.timestamp_ns, Ordering::Relaxed);
         cell.write(&pose_words(&pose, now));
+        self.count_pose(tool, source, driver(source, pose.client), pose.sequence);
         true
+    }
+
+    /// Counts an accepted pose and the poses its session's stream lost since its last one. A
+    /// lower or equal number, or another session, starts a new stream (a driver restarted or
+    /// the tool changed hands): nothing is counted missing for it.
+    fn count_pose(&self, tool: usize, source: usize, id: u64, sequence: u64) {
+        let counts = &self.tool_counts[tool];
+        counts.poses.fetch_add(1, Ordering::Relaxed);
+        let (last_id, last) = &self.sequences[tool][source];
+        let previous = last.swap(sequence, Ordering::Relaxed);
+        if last_id.swap(id, Ordering::Relaxed) == id && previous != 0 && sequence > previous + 1 {
+            counts.missing.fetch_add(sequence - previous - 1, Ordering::Relaxed);
+        }
     }
 
     /// Whether session `id` may drive tool `tool` at `now`: it does already, or nobody does,
@@ -577,6 +610,36 @@ mod tests {
     /// The thread answers each pose with a force that names it, renders the snapshot, fades
     /// when the poses stop, and counts refused poses; its ticks keep the period (the jitter is
     /// measured and printed, not asserted).
+    #[test]
+    fn gaps_in_a_stream_count_as_missing_and_a_new_stream_does_not() {
+        let shared = LoopShared::new(1);
+        let pose = |client, seq: u64, ts: u64| RawToolPose {
+            sequence: seq,
+            timestamp_ns: ts,
+            client,
+            ..RawToolPose::at(0, [0.0; 3])
+        };
+        let counts = |s: &LoopShared| {
+            let c = &s.tool_counts[0];
+            (c.poses.load(Ordering::Relaxed), c.missing.load(Ordering::Relaxed))
+        };
+        for seq in 1..=3 {
+            shared.accept_pose(0, &pose(5, seq, seq));
+        }
+        assert_eq!(counts(&shared), (3, 0));
+        // Poses 4 to 9 never arrived.
+        shared.accept_pose(0, &pose(5, 10, 10));
+        assert_eq!(counts(&shared), (4, 6));
+        // A late one goes back in time: refused, not counted as arrived.
+        shared.accept_pose(0, &pose(5, 7, 7));
+        assert_eq!(counts(&shared), (4, 6));
+        // A restarted driver (a new session, once the old one fell silent) numbers from 1.
+        std::thread::sleep(Duration::from_nanos(TIMELINE_RESET_NS + 1_000_000));
+        shared.accept_pose(0, &pose(6, 1, 1));
+        shared.accept_pose(0, &pose(6, 2, 2));
+        assert_eq!(counts(&shared), (6, 6));
+    }
+
     #[test]
     fn the_thread_answers_poses_and_fades_when_they_stop() {
         let shared = LoopShared::new(1);

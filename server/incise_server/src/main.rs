@@ -21,9 +21,28 @@ struct Cli {
     /// A scene file (TOML, see deploy/scenes/README.md); without one, the embedded demo organ
     /// (8 × 6 × 5 cm with a tumour, a scalpel and a grasper) runs.
     scene: Option<PathBuf>,
-    /// zenoh endpoint to listen on (repeatable); loopback only by default.
-    #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
+    /// zenoh endpoint to listen on (repeatable). Default: `tcp/127.0.0.1:7447` (loopback only),
+    /// unless `--connect` or `--zenoh-config` says where the server's zenoh goes.
+    #[arg(long, value_name = "ENDPOINT")]
     listen: Vec<String>,
+    /// zenoh endpoint to connect to (repeatable), such as a site router's `tcp/10.0.0.2:7447`:
+    /// clients then reach the server through it.
+    #[arg(long, value_name = "ENDPOINT")]
+    connect: Vec<String>,
+    /// A zenoh configuration file (json5), such as `deploy/zenoh/server.json5` (a station's
+    /// server behind a site router, TLS certificates): it decides the session's mode, endpoints,
+    /// scouting and security; `--listen` and `--connect` replace its endpoints.
+    #[arg(long, value_name = "FILE")]
+    zenoh_config: Option<PathBuf>,
+    /// A zenoh setting over the configuration's, `KEY:VALUE` with a json5 value (repeatable),
+    /// e.g. `--zenoh-cfg 'transport/link/tls/connect_certificate:"/etc/incise/tls/a.crt"'`.
+    #[arg(long = "zenoh-cfg", value_name = "KEY:VALUE")]
+    zenoh_cfg: Vec<String>,
+    /// The station's name, which prefixes all the server's keys (`incise/v1/<NAME>/…`) in place
+    /// of the scene's name: one router then serves many servers, even of the same scene,
+    /// without collisions. Letters, digits, `_` and `-`.
+    #[arg(long, value_name = "NAME")]
+    name: Option<String>,
     /// Find zenoh peers by UDP multicast too (off: explicit endpoints only).
     #[arg(long)]
     multicast_scouting: bool,
@@ -67,6 +86,21 @@ struct Cli {
     no_record: bool,
 }
 
+/// Where the server's zenoh listens and connects, for the log.
+fn describe_zenoh(z: &Endpoints) -> String {
+    let mut parts = Vec::new();
+    if let Some(file) = &z.config_file {
+        parts.push(format!("config {}", file.display()));
+    }
+    if !z.listen.is_empty() {
+        parts.push(format!("listening on {}", z.listen.join(" ")));
+    }
+    if !z.connect.is_empty() {
+        parts.push(format!("connecting to {}", z.connect.join(" ")));
+    }
+    format!("zenoh ({})", parts.join(", "))
+}
+
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -92,11 +126,19 @@ fn main() -> anyhow::Result<()> {
         "--max-force must be a positive number of newtons, not {}",
         cli.max_force
     );
+    let listen = if cli.listen.is_empty() && cli.connect.is_empty() && cli.zenoh_config.is_none() {
+        vec![format!("tcp/127.0.0.1:{}", incise_transport::zenoh_link::DEFAULT_PORT)]
+    } else {
+        cli.listen.clone()
+    };
     let mut options = Options {
+        name: cli.name.clone(),
         zenoh: (!cli.no_zenoh).then(|| Endpoints {
-            listen: cli.listen.clone(),
-            connect: Vec::new(),
+            listen,
+            connect: cli.connect.clone(),
             multicast_scouting: cli.multicast_scouting,
+            config_file: cli.zenoh_config.clone(),
+            settings: cli.zenoh_cfg.clone(),
         }),
         iceoryx2: !cli.no_iceoryx2,
         haptics: HapticSettings { max_force_n: cli.max_force, ..HapticSettings::default() },
@@ -129,6 +171,10 @@ fn main() -> anyhow::Result<()> {
             cli.scene
         );
         anyhow::ensure!(
+            cli.zenoh_config.is_none() && cli.connect.is_empty() && cli.name.is_none(),
+            "--demo serves its own scene on its own endpoint; leave out --zenoh-config, --connect and --name"
+        );
+        anyhow::ensure!(
             cli.duration.is_finite() && cli.duration > 0.0,
             "--duration must be a positive number of seconds"
         );
@@ -157,10 +203,7 @@ fn main() -> anyhow::Result<()> {
         running.keys.scene(),
         running.tools.len(),
         running.tools.join(", "),
-        options
-            .zenoh
-            .as_ref()
-            .map_or("no zenoh".into(), |z| format!("zenoh {}", z.listen.join(" "))),
+        options.zenoh.as_ref().map_or("no zenoh".into(), describe_zenoh),
         if options.iceoryx2 { " and iceoryx2" } else { "" }
     );
     let stop = Arc::new(AtomicBool::new(false));

@@ -23,7 +23,10 @@ use std::time::Duration;
 /// How a server runs.
 #[derive(Clone, Debug)]
 pub struct Options {
-    /// zenoh endpoints to listen on (`None`: no zenoh).
+    /// The name the server's keys carry (`incise/v1/<name>/…`) instead of the scene's own, so
+    /// that one router can serve several stations running the same scene.
+    pub name: Option<String>,
+    /// How zenoh is served: its endpoints, or a configuration file (`None`: no zenoh).
     pub zenoh: Option<Endpoints>,
     /// Whether to serve iceoryx2.
     pub iceoryx2: bool,
@@ -45,6 +48,7 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Self {
+            name: None,
             zenoh: Some(Endpoints::listen_loopback(incise_transport::zenoh_link::DEFAULT_PORT)),
             iceoryx2: true,
             haptics: HapticSettings::default(),
@@ -129,10 +133,49 @@ fn key_name(name: &str) -> String {
     n
 }
 
+/// Poses refused, by reason: the haptic loop's checks, then the transports'.
+fn refusals(shared: &LoopShared, faults: &Faults) -> impl Iterator<Item = (&'static str, u64)> {
+    let c = &shared.counters;
+    let get = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
+    [("invalid", get(&c.invalid)), ("backwards", get(&c.backwards)), ("claimed", get(&c.claimed))]
+        .into_iter()
+        .chain(faults.snapshot())
+}
+
+/// What the stats queryable answers: the counters of the haptic loop, the transports and the
+/// physics at the time of the query.
+fn server_stats(
+    scene: &str,
+    started: std::time::Instant,
+    shared: &LoopShared,
+    faults: &Faults,
+    physics: &PhysicsStats,
+) -> v1::ServerStats {
+    let get = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
+    let c = &shared.counters;
+    let refused = refusals(shared, faults)
+        .map(|(reason, count)| v1::RefusedCount { reason: reason.to_owned(), count })
+        .collect();
+    v1::ServerStats {
+        scene: scene.to_owned(),
+        uptime_s: started.elapsed().as_secs_f64(),
+        frames: get(&physics.frames),
+        late_frames: get(&physics.late),
+        poses: shared.tool_counts.iter().map(|t| get(&t.poses)).collect(),
+        missing_poses: shared.tool_counts.iter().map(|t| get(&t.missing)).collect(),
+        refused,
+        haptic_updates: get(&c.updates),
+        stale_forces: get(&c.stale),
+    }
+}
+
 /// Starts a server on `scene` (read from `file`, for messages).
 pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Running> {
     let config = &scene.config;
-    let keys = Keys::new(&key_name(&config.name)).context("the scene's name")?;
+    let keys = match &options.name {
+        Some(name) => Keys::new(name).context("--name")?,
+        None => Keys::new(&key_name(&config.name)).context("the scene's name")?,
+    };
     // The physics must leave the haptic thread a core: unless the scene says otherwise, one
     // thread fewer than the cores, whose idle workers sleep.
     let exec = config.exec.executor_beside_realtime_thread();
@@ -146,9 +189,10 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         Arc::new(move |kind, pose| shared.offer_pose(kind.source(), pose))
     };
     let info = scene_info(scene, &keys, &sim, &options.haptics);
+    let physics_stats = Arc::new(PhysicsStats::default());
     let zenoh = match &options.zenoh {
-        Some(endpoints) => Some(
-            ZenohServer::start(
+        Some(endpoints) => {
+            let mut z = ZenohServer::start(
                 &keys,
                 tools.len(),
                 &info,
@@ -156,8 +200,16 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
                 Arc::clone(&handler),
                 Arc::clone(&faults),
             )
-            .context("cannot serve zenoh (another server on the port? choose one with --listen)")?,
-        ),
+            .context("cannot serve zenoh (another server on the port? choose one with --listen)")?;
+            let stats = {
+                let (shared, faults, physics) =
+                    (Arc::clone(&shared), Arc::clone(&faults), Arc::clone(&physics_stats));
+                let (scene, started) = (keys.scene().to_owned(), std::time::Instant::now());
+                move || server_stats(&scene, started, &shared, &faults, &physics)
+            };
+            z.serve_stats(&keys, stats).context("cannot serve the server's statistics")?;
+            Some(z)
+        }
         None => None,
     };
     let iceoryx2 = if options.iceoryx2 {
@@ -170,7 +222,6 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     };
     let transports = Arc::new(ServerSide { zenoh, iceoryx2 });
     let stop = Arc::new(AtomicBool::new(false));
-    let physics_stats = Arc::new(PhysicsStats::default());
     let dt = config.dt();
     let recorder = start_recorder(options, keys.scene(), &physics::tool_looks(config), &shared)?;
     let network =
@@ -355,15 +406,8 @@ impl Running {
             .take(8)
             .map(|(i, name)| format!("{name} {:.2} N", get(&p.tool_force_un[i]) as f64 * 1e-6))
             .collect();
-        let kinds: Vec<(&str, u64)> = [
-            ("invalid", get(&c.invalid)),
-            ("backwards", get(&c.backwards)),
-            ("claimed", get(&c.claimed)),
-        ]
-        .into_iter()
-        .chain(self.faults.snapshot())
-        .filter(|(_, n)| *n > 0)
-        .collect();
+        let kinds: Vec<(&str, u64)> =
+            refusals(&self.shared, &self.faults).filter(|(_, n)| *n > 0).collect();
         let refused: u64 = kinds.iter().map(|(_, n)| n).sum();
         let refused = if kinds.is_empty() {
             "0 refused".to_owned()

@@ -40,6 +40,16 @@ impl Client {
         })
     }
 
+    /// Connects over zenoh as `endpoints` say (a configuration file, a router) to drive tool
+    /// `tool`.
+    pub fn connect_zenoh(
+        keys: &Keys,
+        tool: u32,
+        endpoints: &Endpoints,
+    ) -> Result<Self, TransportError> {
+        Ok(Self::Zenoh(ZenohClient::connect_with(keys, tool, endpoints)?))
+    }
+
     /// Sends a pose, as this connection's session unless the pose names one
     /// ([`RawToolPose::client`]).
     pub fn send_pose(&self, pose: &RawToolPose) -> Result<(), TransportError> {
@@ -66,7 +76,7 @@ impl Client {
     #[must_use]
     pub fn recv_force(&self, timeout: Duration) -> Option<RawToolForce> {
         match self {
-            Self::Zenoh(c) => c.forces.recv_timeout(timeout).ok(),
+            Self::Zenoh(c) => c.recv_force(timeout),
             Self::Iceoryx2(c) => c.recv_force(timeout),
         }
     }
@@ -132,13 +142,24 @@ pub struct ZenohClient {
     forces: flume::Receiver<RawToolForce>,
     _forces: zenoh::pubsub::Subscriber<()>,
     info: String,
+    stats: String,
     zenoh: zenoh::Session,
 }
 
 impl ZenohClient {
     /// Connects to `endpoint` for tool `tool`.
     pub fn connect(keys: &Keys, tool: u32, endpoint: &str) -> Result<Self, TransportError> {
-        let session = Endpoints::connect_to(endpoint).open("client")?;
+        Self::connect_with(keys, tool, &Endpoints::connect_to(endpoint))
+    }
+
+    /// Connects as `endpoints` say (a zenoh configuration file with TLS certificates, a
+    /// router to go through) for tool `tool`.
+    pub fn connect_with(
+        keys: &Keys,
+        tool: u32,
+        endpoints: &Endpoints,
+    ) -> Result<Self, TransportError> {
+        let session = endpoints.open("client")?;
         let key = keys.tool_pose(tool);
         let pose = session
             .declare_publisher(key.clone())
@@ -165,6 +186,7 @@ impl ZenohClient {
             forces,
             _forces: subscriber,
             info: keys.info(),
+            stats: keys.stats(),
             zenoh: session,
         })
     }
@@ -200,23 +222,39 @@ impl ZenohClient {
             .map_err(|e| TransportError(format!("zenoh: cannot send a pose: {e}")))
     }
 
+    /// The next force the server sent, waiting up to `timeout`.
+    #[must_use]
+    pub fn recv_force(&self, timeout: Duration) -> Option<RawToolForce> {
+        self.forces.recv_timeout(timeout).ok()
+    }
+
     /// Asks the server for its scene's description.
     pub fn scene_info(&self, timeout: Duration) -> Result<v1::SceneInfo, TransportError> {
+        self.ask(&self.info, timeout)
+    }
+
+    /// Asks the server how it is doing.
+    pub fn server_stats(&self, timeout: Duration) -> Result<v1::ServerStats, TransportError> {
+        self.ask(&self.stats, timeout)
+    }
+
+    /// Queries `key` and decodes the first reply as an `M`.
+    fn ask<M: Message + Default>(&self, key: &str, timeout: Duration) -> Result<M, TransportError> {
         let replies = self
             .zenoh
-            .get(self.info.clone())
+            .get(key.to_owned())
             .timeout(timeout)
             .wait()
-            .map_err(|e| TransportError(format!("zenoh: cannot ask {}: {e}", self.info)))?;
+            .map_err(|e| TransportError(format!("zenoh: cannot ask {key}: {e}")))?;
         let reply = replies
             .recv_timeout(timeout)
-            .map_err(|e| TransportError(format!("zenoh: {}: {e}", self.info)))?
-            .ok_or_else(|| TransportError(format!("no server answered {}", self.info)))?;
-        let sample = reply
-            .result()
-            .map_err(|e| TransportError(format!("{}: an error reply: {e:?}", self.info)))?;
-        v1::SceneInfo::decode(&*sample.payload().to_bytes())
-            .map_err(|e| TransportError(format!("{}: not a SceneInfo: {e}", self.info)))
+            .map_err(|e| TransportError(format!("zenoh: {key}: {e}")))?
+            .ok_or_else(|| TransportError(format!("no server answered {key}")))?;
+        let sample =
+            reply.result().map_err(|e| TransportError(format!("{key}: an error reply: {e:?}")))?;
+        M::decode(&*sample.payload().to_bytes()).map_err(|e| {
+            TransportError(format!("{key}: not a {}: {e}", std::any::type_name::<M>()))
+        })
     }
 }
 

@@ -12,6 +12,7 @@ use incise_protocol::keys::Keys;
 use incise_protocol::raw::RawToolForce;
 use incise_protocol::v1;
 use prost::Message;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use zenoh::Wait;
@@ -22,8 +23,16 @@ use zenoh::qos::{CongestionControl, Priority};
 #[error("{0}")]
 pub struct TransportError(pub String);
 
-/// Where a zenoh session listens and what it connects to.
-#[derive(Clone, Debug, PartialEq, Eq)]
+/// Where a zenoh session listens, what it connects to, and the zenoh configuration it starts
+/// from.
+///
+/// Without a file the session is configured here alone: the listen and connect endpoints, and
+/// multicast scouting off unless asked for. With [`Endpoints::config_file`] (a zenoh json5
+/// file, such as those in `deploy/zenoh/`) the file decides everything it sets, its `mode`
+/// included (a station's server behind a site router runs in `client` mode); non-empty
+/// `listen` or `connect` lists replace the file's, multicast scouting is turned on only when
+/// asked for, and [`Endpoints::settings`] are applied last.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Endpoints {
     /// Endpoints to listen on, such as `tcp/127.0.0.1:7447`.
     pub listen: Vec<String>,
@@ -31,6 +40,11 @@ pub struct Endpoints {
     pub connect: Vec<String>,
     /// Whether to find peers by UDP multicast (off by default: explicit endpoints only).
     pub multicast_scouting: bool,
+    /// A zenoh configuration file (json5) to start from.
+    pub config_file: Option<PathBuf>,
+    /// `KEY:VALUE` settings over everything else, as zenohd's `--cfg` takes them: a key path
+    /// such as `transport/link/tls/connect_certificate` and a json5 value.
+    pub settings: Vec<String>,
 }
 
 /// The server's default endpoint.
@@ -40,41 +54,71 @@ impl Endpoints {
     /// A server listening on loopback port `port`.
     #[must_use]
     pub fn listen_loopback(port: u16) -> Self {
-        Self {
-            listen: vec![format!("tcp/127.0.0.1:{port}")],
-            connect: Vec::new(),
-            multicast_scouting: false,
-        }
+        Self { listen: vec![format!("tcp/127.0.0.1:{port}")], ..Self::default() }
     }
 
-    /// A client of the server at `endpoint` (`tcp/HOST:PORT`).
+    /// A client of the server (or router) at `endpoint` (`tcp/HOST:PORT`).
     #[must_use]
     pub fn connect_to(endpoint: &str) -> Self {
-        Self { listen: Vec::new(), connect: vec![endpoint.to_owned()], multicast_scouting: false }
+        Self { connect: vec![endpoint.to_owned()], ..Self::default() }
     }
 
-    fn config(&self, mode: &str) -> Result<zenoh::Config, TransportError> {
-        let mut c = zenoh::Config::default();
+    /// The zenoh configuration of a session in `mode` (`peer`, `client` or `router`; a file's
+    /// own `mode` wins).
+    pub fn config(&self, mode: &str) -> Result<zenoh::Config, TransportError> {
+        let (mut c, from_file) = match &self.config_file {
+            Some(path) => {
+                let c = zenoh::Config::from_file(path)
+                    .map_err(|e| TransportError(format!("zenoh config {}: {e}", path.display())))?;
+                (c, true)
+            }
+            None => (zenoh::Config::default(), false),
+        };
         let json = |v: &[String]| {
             format!("[{}]", v.iter().map(|e| format!("{e:?}")).collect::<Vec<_>>().join(","))
         };
+        let file_mode = c.get_json("mode").ok().filter(|m| m != "null");
         let mut set = |key: &str, value: &str| {
             c.insert_json5(key, value)
                 .map_err(|e| TransportError(format!("zenoh config {key} = {value}: {e}")))
         };
-        set("mode", &format!("{mode:?}"))?;
-        set("listen/endpoints", &json(&self.listen))?;
-        set("connect/endpoints", &json(&self.connect))?;
-        set("scouting/multicast/enabled", if self.multicast_scouting { "true" } else { "false" })?;
+        if file_mode.is_none() {
+            set("mode", &format!("{mode:?}"))?;
+        }
+        if !from_file || !self.listen.is_empty() {
+            set("listen/endpoints", &json(&self.listen))?;
+        }
+        if !from_file || !self.connect.is_empty() {
+            set("connect/endpoints", &json(&self.connect))?;
+        }
+        if !from_file || self.multicast_scouting {
+            set(
+                "scouting/multicast/enabled",
+                if self.multicast_scouting { "true" } else { "false" },
+            )?;
+        }
+        for setting in &self.settings {
+            let (key, value) = setting.split_once(':').ok_or_else(|| {
+                TransportError(format!(
+                    "zenoh setting {setting:?}: write KEY:VALUE, e.g. 'connect/endpoints:[\"tcp/127.0.0.1:7447\"]'"
+                ))
+            })?;
+            set(key.trim(), value.trim())?;
+        }
         Ok(c)
     }
 
-    /// Opens a session: `peer` for a server, `client` for a client.
+    /// Opens a session: `peer` for a server, `client` for a client, `router` for a router
+    /// (unless a configuration file names the mode).
     pub fn open(&self, mode: &str) -> Result<zenoh::Session, TransportError> {
         let config = self.config(mode)?;
         zenoh::open(config).wait().map_err(|e| {
+            let file = self
+                .config_file
+                .as_ref()
+                .map_or(String::new(), |p| format!(", config {}", p.display()));
             TransportError(format!(
-                "zenoh: cannot open a {mode} session (listen {:?}, connect {:?}): {e}",
+                "zenoh: cannot open a {mode} session (listen {:?}, connect {:?}{file}): {e}",
                 self.listen, self.connect
             ))
         })
@@ -100,9 +144,10 @@ pub struct ZenohServer {
     cut: Publisher,
     _poses: zenoh::pubsub::Subscriber<()>,
     _info: zenoh::query::Queryable<()>,
+    stats: Option<zenoh::query::Queryable<()>>,
     faults: Arc<Faults>,
     // Last, so the declarations above are undeclared before the session closes.
-    _session: zenoh::Session,
+    session: zenoh::Session,
 }
 
 impl ZenohServer {
@@ -156,7 +201,28 @@ impl ZenohServer {
             })
             .wait()
             .map_err(|e| TransportError(format!("zenoh: cannot answer {}: {e}", keys.info())))?;
-        Ok(Self { forces, frame, cut, _poses: poses, _info: info, faults, _session: session })
+        Ok(Self { forces, frame, cut, _poses: poses, _info: info, stats: None, faults, session })
+    }
+
+    /// Answers queries on `keys`' stats key with what `stats` says at the time of each query.
+    pub fn serve_stats(
+        &mut self,
+        keys: &Keys,
+        stats: impl Fn() -> v1::ServerStats + Send + Sync + 'static,
+    ) -> Result<(), TransportError> {
+        let key = keys.stats();
+        let reply_key = key.clone();
+        let queryable = self
+            .session
+            .declare_queryable(key.clone())
+            .callback(move |query| {
+                // A reply that cannot be sent (the querier left) needs no handling here.
+                let _ = query.reply(reply_key.clone(), stats().encode_to_vec()).wait();
+            })
+            .wait()
+            .map_err(|e| TransportError(format!("zenoh: cannot answer {key}: {e}")))?;
+        self.stats = Some(queryable);
+        Ok(())
     }
 
     fn put(&self, publisher: &Publisher, bytes: Vec<u8>) {

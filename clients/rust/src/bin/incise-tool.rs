@@ -7,6 +7,7 @@ use clap::Parser;
 use incise_client::drive::{Report, drive};
 use incise_client::script::{Script, parse_csv};
 use incise_client::{Client, Keys, TransportKind};
+use incise_transport::zenoh_link::Endpoints;
 use std::time::Duration;
 
 /// Drives one tool of a running incise-server along a scripted trajectory and reports the
@@ -17,9 +18,18 @@ struct Cli {
     /// `zenoh` (network) or `iceoryx2` (shared memory, same machine).
     #[arg(long, default_value = "zenoh")]
     transport: TransportKind,
-    /// The server's zenoh endpoint (also asked for the scene's description).
-    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
-    connect: String,
+    /// The server's (or the site router's) zenoh endpoint, also asked for the scene's
+    /// description. Default: `tcp/127.0.0.1:7447`, unless `--zenoh-config` names one.
+    #[arg(long, value_name = "ENDPOINT")]
+    connect: Option<String>,
+    /// A zenoh configuration file (json5) for the connection, such as
+    /// `deploy/zenoh/driver.json5` (TLS certificates, the site router); `--connect`, when
+    /// given, replaces its endpoints.
+    #[arg(long, value_name = "FILE")]
+    zenoh_config: Option<std::path::PathBuf>,
+    /// A zenoh setting over the configuration's, `KEY:VALUE` with a json5 value (repeatable).
+    #[arg(long = "zenoh-cfg", value_name = "KEY:VALUE")]
+    zenoh_cfg: Vec<String>,
     /// The scene's name, as the server's keys carry it.
     #[arg(long, default_value = "demo_organ")]
     scene: String,
@@ -61,16 +71,32 @@ fn main() -> anyhow::Result<()> {
         bail!("--rate must be between 0 and 20000 poses per second");
     }
     let keys = Keys::new(&cli.scene)?;
+    let connect = match (&cli.connect, &cli.zenoh_config) {
+        (Some(endpoint), _) => vec![endpoint.clone()],
+        (None, None) => vec!["tcp/127.0.0.1:7447".to_owned()],
+        (None, Some(_)) => Vec::new(),
+    };
+    let endpoints = Endpoints {
+        connect: connect.clone(),
+        config_file: cli.zenoh_config.clone(),
+        settings: cli.zenoh_cfg.clone(),
+        ..Endpoints::default()
+    };
     let at = match &cli.at {
         Some(v) if v.len() == 3 && v.iter().all(|c| c.is_finite()) => [v[0], v[1], v[2]],
         Some(v) => bail!("--at takes three finite numbers, x,y,z in metres, not {v:?}"),
         None => {
             let probe =
-                incise_transport::client::ZenohClient::connect(&keys, cli.tool, &cli.connect)?;
+                incise_transport::client::ZenohClient::connect_with(&keys, cli.tool, &endpoints)?;
             let info = probe.scene_info(Duration::from_secs(5)).with_context(|| {
                 format!(
                     "no scene {} answered at {} (give --at x,y,z to go without)",
-                    cli.scene, cli.connect
+                    cli.scene,
+                    if connect.is_empty() {
+                        "the configured endpoints".into()
+                    } else {
+                        connect.join(" ")
+                    }
                 )
             })?;
             [
@@ -91,7 +117,10 @@ fn main() -> anyhow::Result<()> {
             Script::Csv(parse_csv(&text, file).map_err(anyhow::Error::msg)?)
         }
     };
-    let client = Client::connect(cli.transport, &keys, cli.tool, &cli.connect)?;
+    let client = match cli.transport {
+        TransportKind::Zenoh => Client::connect_zenoh(&keys, cli.tool, &endpoints)?,
+        TransportKind::Iceoryx2 => Client::connect(cli.transport, &keys, cli.tool, "")?,
+    };
     let duration = Duration::from_secs_f64(cli.duration);
     let mut count = 0u64;
     let report = drive(

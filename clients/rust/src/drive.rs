@@ -91,6 +91,25 @@ impl RoundTrips {
         self.max_us = self.max_us.max(us);
     }
 
+    /// The non-empty buckets, `(bucket, count)`: the histogram in a form another process can
+    /// read back with [`Self::add_buckets`] (pooling several clients' round trips).
+    #[must_use]
+    pub fn buckets(&self) -> Vec<(usize, u32)> {
+        self.counts.iter().enumerate().filter(|(_, c)| **c > 0).map(|(b, c)| (b, *c)).collect()
+    }
+
+    /// Adds another histogram's [`Self::buckets`] and its largest round trip (µs); buckets
+    /// out of range are ignored.
+    pub fn add_buckets(&mut self, buckets: &[(usize, u32)], max_us: f64) {
+        for &(b, c) in buckets {
+            if let Some(slot) = self.counts.get_mut(b) {
+                *slot = slot.saturating_add(c);
+                self.count += u64::from(c);
+            }
+        }
+        self.max_us = self.max_us.max(max_us);
+    }
+
     /// Round trips counted.
     #[must_use]
     pub fn len(&self) -> u64 {
@@ -241,5 +260,24 @@ mod tests {
         }
         assert_eq!(trips.quantile(1.0), Some(exact[exact.len() - 1]));
         assert_eq!(RoundTrips::default().quantile(0.5), None);
+    }
+
+    /// Two histograms pooled through their buckets give the histogram of both samples.
+    #[test]
+    fn pooled_buckets_equal_one_histogram_of_everything() {
+        let (mut a, mut b, mut both) =
+            (RoundTrips::default(), RoundTrips::default(), RoundTrips::default());
+        for i in 0..5000 {
+            let us = f64::from(i) * 0.37 + f64::from(i % 7) * 900.0;
+            if i % 3 == 0 { &mut a } else { &mut b }.record(us);
+            both.record(us);
+        }
+        let mut pooled = RoundTrips::default();
+        pooled.add_buckets(&a.buckets(), a.quantile(1.0).unwrap());
+        pooled.add_buckets(&b.buckets(), b.quantile(1.0).unwrap());
+        assert_eq!(pooled.len(), both.len());
+        for q in [0.0, 0.5, 0.9, 0.99, 0.999, 1.0] {
+            assert_eq!(pooled.quantile(q), both.quantile(q), "q {q}");
+        }
     }
 }

@@ -9,9 +9,16 @@
 //! transport, a force sent back the moment a pose arrives, no physics, no haptic loop) for the
 //! same time: the round trip this machine's scheduler and the transport alone give, measured in
 //! the same run, against which the server's figures read.
+//!
+//! `--via-router --scenes N` (zenoh): a zenoh router (`latency-router`) and N servers, each of
+//! its own scene name (`latency-0` …), connected to it; N clients, one per scene, drive their
+//! scene's scalpel at 1 kHz at once, every pose and force going through the router. The round
+//! trips of all clients are pooled into one distribution (the same JSON keys as without the
+//! router, plus `scenes`, `via_router` and each scene's p99); the floor is N echo servers
+//! behind the same router.
 
 use anyhow::{Context, bail};
-use incise_client::drive::drive;
+use incise_client::drive::{RoundTrips, drive};
 use incise_client::script::Script;
 use incise_client::{Client, Keys, TransportKind};
 use incise_server::server::{self, Options};
@@ -40,6 +47,21 @@ pub struct LatencyArgs {
     /// Skip the echo server's floor measurement.
     #[arg(long)]
     no_floor: bool,
+    /// Go through a zenoh router (zenoh only): servers and clients connect to it, as on a
+    /// site (deploy/README.md).
+    #[arg(long)]
+    via_router: bool,
+    /// How many scenes, one server and one client each, run at once behind the router
+    /// (1 to 16; more than 1 needs `--via-router`).
+    #[arg(long, default_value_t = 1)]
+    scenes: usize,
+}
+
+/// The hidden router role's options.
+#[derive(clap::Args, Debug)]
+pub struct RouterRole {
+    #[arg(long)]
+    listen: String,
 }
 
 /// The hidden echo role's options.
@@ -48,7 +70,9 @@ pub struct EchoRole {
     #[arg(long)]
     transport: TransportKind,
     #[arg(long)]
-    listen: String,
+    listen: Option<String>,
+    #[arg(long)]
+    connect: Option<String>,
     #[arg(long)]
     scene_name: String,
 }
@@ -59,7 +83,21 @@ pub struct ServerRole {
     #[arg(long)]
     scene: String,
     #[arg(long)]
-    listen: String,
+    listen: Option<String>,
+    #[arg(long)]
+    connect: Option<String>,
+    /// The keys' name, in place of the scene's.
+    #[arg(long)]
+    name: Option<String>,
+}
+
+/// A role's zenoh endpoints: listen on one, or connect to one (a router).
+fn role_endpoints(listen: Option<&String>, connect: Option<&String>) -> Endpoints {
+    Endpoints {
+        listen: listen.into_iter().cloned().collect(),
+        connect: connect.into_iter().cloned().collect(),
+        ..Endpoints::default()
+    }
 }
 
 /// The hidden client role's options.
@@ -91,6 +129,12 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
     if !(args.duration.is_finite() && args.duration > 0.0 && args.duration <= 60.0) {
         bail!("--duration must be between 0 and 60 s");
     }
+    anyhow::ensure!((1..=16).contains(&args.scenes), "--scenes must be between 1 and 16");
+    anyhow::ensure!(args.scenes == 1 || args.via_router, "--scenes above 1 needs --via-router");
+    anyhow::ensure!(
+        !args.via_router || args.transport == TransportKind::Zenoh,
+        "--via-router is a zenoh router: use --transport zenoh"
+    );
     let scene = incise_scene::read_scene(args.scene.as_ref())
         .with_context(|| format!("--scene {}", args.scene))?;
     anyhow::ensure!(
@@ -98,151 +142,291 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
         "--scene {}: it has no tool to drive",
         args.scene
     );
-    let name = scene.config.name.clone();
     let exe = std::env::current_exe()?;
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+    // Through a router every server and client connects to its one endpoint; otherwise each
+    // server listens on an endpoint of its own.
+    let router_endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+    let _router = if args.via_router {
+        eprintln!("latency: a zenoh router on {router_endpoint}");
+        Some(Role::start(
+            &exe,
+            &["latency-router".into(), "--listen".into(), router_endpoint.clone()],
+        )?)
+    } else {
+        None
+    };
+    let names: Vec<String> = if args.via_router {
+        (0..args.scenes).map(|i| format!("latency-{i}")).collect()
+    } else {
+        vec![scene.config.name.clone()]
+    };
+    // A server's endpoint arguments, and the endpoint its client connects to.
+    let place = || -> anyhow::Result<(Vec<String>, String)> {
+        if args.via_router {
+            Ok((vec!["--connect".into(), router_endpoint.clone()], router_endpoint.clone()))
+        } else {
+            let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+            Ok((vec!["--listen".into(), endpoint.clone()], endpoint))
+        }
+    };
     eprintln!(
-        "latency: server on {} ({endpoint}), client over {}",
+        "latency: {} server{} on {}, client{} over {}{}",
+        names.len(),
+        if names.len() == 1 { "" } else { "s" },
         args.scene,
-        args.transport.name()
+        if names.len() == 1 { "" } else { "s" },
+        args.transport.name(),
+        if args.via_router { " through the router" } else { "" }
     );
-    let server_args = ["latency-server", "--scene", &args.scene, "--listen", &endpoint];
-    let (client, rest) =
-        with_server(&exe, &server_args, |exe| run_client(exe, args, &endpoint, &name, false))?;
+    let mut servers = Vec::new();
+    let mut clients = Vec::new();
+    for name in &names {
+        let (server_place, client_endpoint) = place()?;
+        let mut role = vec!["latency-server".into(), "--scene".into(), args.scene.clone()];
+        role.extend(server_place);
+        if args.via_router {
+            role.extend(["--name".into(), name.clone()]);
+        }
+        servers.push(role);
+        clients.push((client_endpoint, name.clone()));
+    }
+    let (outputs, rest) =
+        with_servers(&exe, &servers, |exe| run_clients(exe, args, &clients, false))?;
     let floor = if args.no_floor {
         None
     } else {
-        let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
-        let scene_name = format!("latency_floor_{}", std::process::id());
-        eprintln!("latency: echo server over {} (the transport's floor)", args.transport.name());
-        let echo_args = [
-            "latency-echo",
-            "--transport",
-            args.transport.name(),
-            "--listen",
-            &endpoint,
-            "--scene-name",
-            &scene_name,
-        ];
-        let (floor, _) = with_server(&exe, &echo_args, |exe| {
-            run_client(exe, args, &endpoint, &scene_name, true)
-        })?;
+        let mut echoes = Vec::new();
+        let mut clients = Vec::new();
+        for i in 0..names.len() {
+            let (echo_place, client_endpoint) = place()?;
+            let name = format!("latency_floor_{}_{i}", std::process::id());
+            let mut role =
+                vec!["latency-echo".into(), "--transport".into(), args.transport.name().into()];
+            role.extend(echo_place);
+            role.extend(["--scene-name".into(), name.clone()]);
+            echoes.push(role);
+            clients.push((client_endpoint, name));
+        }
+        eprintln!(
+            "latency: echo server{} over {} (the transport's floor)",
+            if echoes.len() == 1 { "" } else { "s" },
+            args.transport.name()
+        );
+        let (floor, _) = with_servers(&exe, &echoes, |exe| run_clients(exe, args, &clients, true))?;
         Some(floor)
     };
     let parse = |text: &str, who: &str| -> anyhow::Result<serde_json::Value> {
         let last = text.lines().last().with_context(|| format!("the {who} printed nothing"))?;
         serde_json::from_str(last).with_context(|| format!("the {who}'s last line: {last}"))
     };
-    let c = parse(&client, "client")?;
-    let s = parse(&rest, "server")?;
-    let floor = floor.map(|text| parse(&text, "floor client")).transpose()?;
+    let clients: Vec<serde_json::Value> =
+        outputs.iter().map(|o| parse(o, "client")).collect::<Result<_, _>>()?;
+    let servers: Vec<serde_json::Value> =
+        rest.iter().map(|o| parse(o, "server")).collect::<Result<_, _>>()?;
+    let floor = floor
+        .map(|f| f.iter().map(|o| parse(o, "floor client")).collect::<Result<Vec<_>, _>>())
+        .transpose()?;
+    let c = pooled(&clients)?;
+    let e = floor.as_ref().map(|f| pooled(f)).transpose()?;
     let f = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+    let worst = |k: &str| servers.iter().map(|s| f(s, k)).fold(f64::NAN, f64::max);
+    let total = |k: &str| servers.iter().map(|s| s[k].as_u64().unwrap_or(0)).sum::<u64>();
+    let per_scene: Vec<f64> = clients.iter().map(|c| f(c, "rtt_us_p99")).collect();
     println!(
-        "latency over {} ({} for {:.1} s, client and server in separate processes)",
+        "latency over {}{} ({} for {:.1} s, {} scene{}, clients and servers in separate processes)",
         args.transport.name(),
+        if args.via_router { " through a zenoh router" } else { "" },
         args.scene,
-        args.duration
+        args.duration,
+        names.len(),
+        if names.len() == 1 { "" } else { "s" },
     );
-    println!("pose → force round trip: {} samples of {} poses", c["samples"], c["sent"]);
+    println!("pose → force round trip: {} samples of {} poses", c.samples, c.sent);
     println!(
         "  p50 {:.0} µs   p99 {:.0} µs   p99.9 {:.0} µs   max {:.0} µs",
-        f(&c, "rtt_us_p50"),
-        f(&c, "rtt_us_p99"),
-        f(&c, "rtt_us_p999"),
-        f(&c, "rtt_us_max")
+        c.quantile(0.5),
+        c.quantile(0.99),
+        c.quantile(0.999),
+        c.quantile(1.0)
     );
+    if names.len() > 1 {
+        let list: Vec<String> = per_scene.iter().map(|p| format!("{p:.0}")).collect();
+        println!("  p99 per scene (µs): {}", list.join(", "));
+    }
     println!(
-        "haptic period jitter while the physics ran: p50 {:.0} µs   p99 {:.0} µs   max {:.0} µs ({} physics frames, {} late)",
-        f(&s, "jitter_us_p50"),
-        f(&s, "jitter_us_p99"),
-        f(&s, "jitter_us_max"),
-        s["frames"],
-        s["late"]
+        "haptic period jitter while the physics ran (worst server): p50 {:.0} µs   p99 {:.0} µs   max {:.0} µs ({} physics frames, {} late)",
+        worst("jitter_us_p50"),
+        worst("jitter_us_p99"),
+        worst("jitter_us_max"),
+        total("frames"),
+        total("late")
     );
-    println!("max force {:.3} N; voxels cut {}", f(&c, "max_force_n"), s["removed"]);
-    if let Some(e) = &floor {
+    println!("max force {:.3} N; voxels cut {}", c.max_force_n, total("removed"));
+    if let Some(e) = &e {
         println!(
-            "transport floor (an echo server answering at once, no physics): p50 {:.0} µs   p99 {:.0} µs   p99.9 {:.0} µs ({} samples); the server adds p50 {:+.0} µs, p99 {:+.0} µs",
-            f(e, "rtt_us_p50"),
-            f(e, "rtt_us_p99"),
-            f(e, "rtt_us_p999"),
-            e["samples"],
-            f(&c, "rtt_us_p50") - f(e, "rtt_us_p50"),
-            f(&c, "rtt_us_p99") - f(e, "rtt_us_p99"),
+            "transport floor (echo servers answering at once, no physics): p50 {:.0} µs   p99 {:.0} µs   p99.9 {:.0} µs ({} samples); the servers add p50 {:+.0} µs, p99 {:+.0} µs",
+            e.quantile(0.5),
+            e.quantile(0.99),
+            e.quantile(0.999),
+            e.samples,
+            c.quantile(0.5) - e.quantile(0.5),
+            c.quantile(0.99) - e.quantile(0.99),
         );
     }
     if args.json {
         let json = serde_json::json!({
             "transport": args.transport.name(),
-            "rtt_us_p50": c["rtt_us_p50"],
-            "rtt_us_p99": c["rtt_us_p99"],
-            "rtt_us_p999": c["rtt_us_p999"],
-            "rtt_us_max": c["rtt_us_max"],
-            "jitter_us_p99": s["jitter_us_p99"],
-            "samples": c["samples"],
-            "sent": c["sent"],
-            "max_force_n": c["max_force_n"],
-            "frames": s["frames"],
-            "floor_us_p50": floor.as_ref().map(|e| e["rtt_us_p50"].clone()),
-            "floor_us_p99": floor.as_ref().map(|e| e["rtt_us_p99"].clone()),
-            "floor_us_p999": floor.as_ref().map(|e| e["rtt_us_p999"].clone()),
+            "via_router": args.via_router,
+            "scenes": names.len(),
+            "rtt_us_p50": c.quantile(0.5),
+            "rtt_us_p99": c.quantile(0.99),
+            "rtt_us_p999": c.quantile(0.999),
+            "rtt_us_max": c.quantile(1.0),
+            "rtt_us_p99_per_scene": per_scene,
+            "jitter_us_p99": worst("jitter_us_p99"),
+            "samples": c.samples,
+            "sent": c.sent,
+            "max_force_n": c.max_force_n,
+            "frames": total("frames"),
+            "floor_us_p50": e.as_ref().map(|e| e.quantile(0.5)),
+            "floor_us_p99": e.as_ref().map(|e| e.quantile(0.99)),
+            "floor_us_p999": e.as_ref().map(|e| e.quantile(0.999)),
         });
         println!("{json}");
     }
     Ok(())
 }
 
-/// Starts this program in a server role (`args`), waits for its `ready`, runs `during`, then
-/// closes the server's input (it stops) and returns what `during` returned and everything the
-/// server printed after `ready`.
-fn with_server<T>(
-    exe: &std::path::Path,
-    args: &[&str],
-    during: impl FnOnce(&std::path::Path) -> anyhow::Result<T>,
-) -> anyhow::Result<(T, String)> {
-    let mut server = Command::new(exe)
-        .args(args)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()?;
-    let mut lines = BufReader::new(server.stdout.take().expect("piped"));
-    let mut line = String::new();
-    lines.read_line(&mut line)?;
-    if line.trim() != "ready" {
-        let _ = server.kill();
-        bail!("the {} did not start: {line}", args[0]);
+/// Several clients' round trips pooled into one distribution.
+struct Pooled {
+    trips: RoundTrips,
+    samples: u64,
+    sent: u64,
+    max_force_n: f64,
+}
+
+impl Pooled {
+    fn quantile(&self, q: f64) -> f64 {
+        self.trips.quantile(q).unwrap_or(f64::NAN)
     }
+}
+
+/// Pools the clients' histograms (their `rtt_buckets`).
+fn pooled(clients: &[serde_json::Value]) -> anyhow::Result<Pooled> {
+    let mut p = Pooled { trips: RoundTrips::default(), samples: 0, sent: 0, max_force_n: 0.0 };
+    for c in clients {
+        let buckets: Vec<(usize, u32)> = serde_json::from_value(c["rtt_buckets"].clone())
+            .context("a client's line has no rtt_buckets")?;
+        p.trips.add_buckets(&buckets, c["rtt_us_max"].as_f64().unwrap_or(0.0));
+        p.samples += c["samples"].as_u64().unwrap_or(0);
+        p.sent += c["sent"].as_u64().unwrap_or(0);
+        p.max_force_n = p.max_force_n.max(c["max_force_n"].as_f64().unwrap_or(0.0));
+    }
+    Ok(p)
+}
+
+/// A role of this program in a process of its own, ready (it printed `ready`); it stops when
+/// its standard input closes ([`Role::finish`]) or when dropped (killed).
+struct Role {
+    child: std::process::Child,
+    lines: BufReader<std::process::ChildStdout>,
+}
+
+impl Role {
+    fn start(exe: &std::path::Path, args: &[String]) -> anyhow::Result<Self> {
+        let mut child = Command::new(exe)
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()?;
+        let mut lines = BufReader::new(child.stdout.take().expect("piped"));
+        let mut line = String::new();
+        lines.read_line(&mut line)?;
+        if line.trim() != "ready" {
+            let _ = child.kill();
+            bail!("the {} did not start: {line}", args[0]);
+        }
+        Ok(Self { child, lines })
+    }
+
+    /// Closes its input and returns everything it printed after `ready`.
+    fn finish(mut self) -> anyhow::Result<String> {
+        drop(self.child.stdin.take());
+        let mut rest = String::new();
+        self.lines.read_to_string(&mut rest)?;
+        self.child.wait()?;
+        Ok(rest)
+    }
+}
+
+impl Drop for Role {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Starts this program in each server role of `servers`, runs `during`, then stops them and
+/// returns what `during` returned and everything each server printed after `ready`.
+fn with_servers<T>(
+    exe: &std::path::Path,
+    servers: &[Vec<String>],
+    during: impl FnOnce(&std::path::Path) -> anyhow::Result<T>,
+) -> anyhow::Result<(T, Vec<String>)> {
+    let started =
+        servers.iter().map(|args| Role::start(exe, args)).collect::<Result<Vec<_>, _>>()?;
     let result = during(exe);
-    drop(server.stdin.take()); // the server stops when its input closes
-    let mut rest = String::new();
-    lines.read_to_string(&mut rest)?;
-    server.wait()?;
+    let rest = started.into_iter().map(Role::finish).collect::<Result<Vec<_>, _>>()?;
     Ok((result?, rest))
 }
 
-/// Runs the client role against `endpoint`'s scene `scene_name`; its standard output.
-fn run_client(
+/// Runs a client role for each `(endpoint, scene name)` at once; their standard outputs.
+fn run_clients(
     exe: &std::path::Path,
     args: &LatencyArgs,
-    endpoint: &str,
-    scene_name: &str,
+    clients: &[(String, String)],
     echo: bool,
-) -> anyhow::Result<String> {
-    let mut command = Command::new(exe);
-    command
-        .args(["latency-client", "--transport", args.transport.name(), "--connect", endpoint])
-        .args(["--scene-name", scene_name, "--duration", &args.duration.to_string()]);
-    if echo {
-        command.arg("--echo");
-    }
-    let out = command.output()?;
-    anyhow::ensure!(
-        out.status.success(),
-        "the client failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+) -> anyhow::Result<Vec<String>> {
+    let children = clients
+        .iter()
+        .map(|(endpoint, scene_name)| {
+            let mut command = Command::new(exe);
+            command
+                .args(["latency-client", "--transport", args.transport.name()])
+                .args(["--connect", endpoint, "--scene-name", scene_name])
+                .args(["--duration", &args.duration.to_string()])
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped());
+            if echo {
+                command.arg("--echo");
+            }
+            command.spawn()
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    children
+        .into_iter()
+        .map(|child| {
+            let out = child.wait_with_output()?;
+            anyhow::ensure!(
+                out.status.success(),
+                "a client failed: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+        })
+        .collect()
+}
+
+/// The router role: a zenoh router on `listen` until its standard input closes.
+pub fn route(role: &RouterRole) -> anyhow::Result<()> {
+    let _router =
+        Endpoints { listen: vec![role.listen.clone()], ..Endpoints::default() }.open("router")?;
+    println!("ready");
+    let _ = std::io::stdin().read_to_end(&mut Vec::new());
+    Ok(())
 }
 
 /// The echo role: serves one tool over one transport and answers every pose with a zero force
@@ -296,7 +480,7 @@ pub fn echo(role: &EchoRole) -> anyhow::Result<()> {
                 &keys,
                 1,
                 &info,
-                &Endpoints { listen: vec![role.listen.clone()], ..Endpoints::default() },
+                &role_endpoints(role.listen.as_ref(), role.connect.as_ref()),
                 handler,
                 faults,
             )?;
@@ -317,7 +501,8 @@ pub fn echo(role: &EchoRole) -> anyhow::Result<()> {
 pub fn serve(role: &ServerRole) -> anyhow::Result<()> {
     let scene = incise_scene::read_scene(role.scene.as_ref())?;
     let options = Options {
-        zenoh: Some(Endpoints { listen: vec![role.listen.clone()], ..Endpoints::default() }),
+        name: role.name.clone(),
+        zenoh: Some(role_endpoints(role.listen.as_ref(), role.connect.as_ref())),
         ..Options::default()
     };
     let running = server::start(&scene, &role.scene, &options)?;
@@ -409,6 +594,7 @@ fn print_report(report: &incise_client::drive::Report) {
         "rtt_us_p999": report.quantile(0.999),
         "rtt_us_max": report.quantile(1.0),
         "max_force_n": report.max_force_n,
+        "rtt_buckets": report.rtt_us.buckets(),
     });
     println!("{json}");
 }

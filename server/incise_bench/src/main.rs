@@ -48,6 +48,8 @@ enum Command {
     /// client in another process sending poses at 1 kHz while it presses and cuts (p50, p99,
     /// p99.9, max), and the haptic thread's period jitter meanwhile; then the same client
     /// against an echo server that answers at once (the transport's floor on this machine).
+    /// `--via-router --scenes N`: N servers of their own scene behind one zenoh router, one
+    /// client each, all at once.
     Latency(latency::LatencyArgs),
     /// `latency`'s server process (started by `latency`).
     #[command(hide = true)]
@@ -58,6 +60,9 @@ enum Command {
     /// `latency`'s echo server: answers every pose at once, no physics (started by `latency`).
     #[command(hide = true)]
     LatencyEcho(latency::EchoRole),
+    /// `latency --via-router`'s zenoh router (started by `latency`).
+    #[command(hide = true)]
+    LatencyRouter(latency::RouterRole),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -72,5 +77,6 @@ fn main() -> anyhow::Result<()> {
         Command::LatencyServer(role) => latency::serve(&role),
         Command::LatencyClient(role) => latency::client(&role),
         Command::LatencyEcho(role) => latency::echo(&role),
+        Command::LatencyRouter(role) => latency::route(&role),
     }
 }

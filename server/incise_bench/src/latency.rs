@@ -55,6 +55,53 @@ pub struct LatencyArgs {
     /// (1 to 16; more than 1 needs `--via-router`).
     #[arg(long, default_value_t = 1)]
     scenes: usize,
+    /// With `--via-router`: a subscriber on the router counts the bytes and messages of every
+    /// kind (poses, forces, frames, cuts) while the clients drive, and reports each scene's
+    /// bandwidth (`bandwidth` in the JSON). It receives everything, so it loads the router:
+    /// take latencies from a run without it.
+    #[arg(long, requires = "via_router")]
+    bandwidth: bool,
+}
+
+/// Every message on the router, counted by kind (the key's last chunk).
+struct Tap {
+    counts: std::sync::Arc<std::sync::Mutex<std::collections::BTreeMap<String, (u64, u64)>>>,
+    _subscriber: zenoh::pubsub::Subscriber<()>,
+    _session: zenoh::Session,
+}
+
+impl Tap {
+    fn start(endpoint: &str) -> anyhow::Result<Self> {
+        use zenoh::Wait;
+        let session = Endpoints::connect_to(endpoint).open("client")?;
+        let counts = std::sync::Arc::new(std::sync::Mutex::new(std::collections::BTreeMap::new()));
+        let c = std::sync::Arc::clone(&counts);
+        let subscriber = session
+            .declare_subscriber("incise/v1/**")
+            .callback(move |sample| {
+                let kind = sample.key_expr().as_str().rsplit('/').next().unwrap_or("").to_owned();
+                let mut c = c.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                let e = c.entry(kind).or_insert((0, 0));
+                e.0 += 1;
+                e.1 += sample.payload().len() as u64;
+            })
+            .wait()
+            .map_err(|e| anyhow::anyhow!("the bandwidth tap cannot subscribe: {e}"))?;
+        Ok(Self { counts, _subscriber: subscriber, _session: session })
+    }
+
+    /// Per kind: messages per second and payload bytes per second, per scene.
+    fn per_scene(&self, seconds: f64, scenes: usize) -> serde_json::Value {
+        let c = self.counts.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let per = |n: u64| n as f64 / seconds / scenes as f64;
+        let kinds: serde_json::Map<String, serde_json::Value> = c
+            .iter()
+            .map(|(k, (m, b))| {
+                (k.clone(), serde_json::json!({ "messages_per_s": per(*m), "bytes_per_s": per(*b) }))
+            })
+            .collect();
+        serde_json::Value::Object(kinds)
+    }
 }
 
 /// The hidden router role's options.
@@ -190,8 +237,10 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
         servers.push(role);
         clients.push((client_endpoint, name.clone()));
     }
+    let tap = if args.bandwidth { Some(Tap::start(&router_endpoint)?) } else { None };
     let (outputs, rest) =
         with_servers(&exe, &servers, |exe| run_clients(exe, args, &clients, false))?;
+    let bandwidth = tap.map(|t| t.per_scene(args.duration, names.len()));
     let floor = if args.no_floor {
         None
     } else {
@@ -273,6 +322,16 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
             c.quantile(0.99) - e.quantile(0.99),
         );
     }
+    if let Some(b) = &bandwidth {
+        println!("per scene through the router (payload bytes, without zenoh's framing):");
+        for (kind, v) in b.as_object().into_iter().flatten() {
+            println!(
+                "  {kind:<8} {:>8.0} messages/s {:>10.0} B/s",
+                v["messages_per_s"].as_f64().unwrap_or(0.0),
+                v["bytes_per_s"].as_f64().unwrap_or(0.0)
+            );
+        }
+    }
     if args.json {
         let json = serde_json::json!({
             "transport": args.transport.name(),
@@ -291,6 +350,7 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
             "floor_us_p50": e.as_ref().map(|e| e.quantile(0.5)),
             "floor_us_p99": e.as_ref().map(|e| e.quantile(0.99)),
             "floor_us_p999": e.as_ref().map(|e| e.quantile(0.999)),
+            "bandwidth": bandwidth,
         });
         println!("{json}");
     }

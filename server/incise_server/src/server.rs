@@ -38,6 +38,9 @@ pub struct Options {
     pub rerun_connect: Option<String>,
     /// How often a recording takes the organ's surface (Hz of simulated time).
     pub geometry_hz: f64,
+    /// Run the haptic thread at this real-time priority (SCHED_FIFO, 1–99) where the host
+    /// allows it; `None`: the normal scheduler.
+    pub haptic_priority: Option<u8>,
     /// The scene file's text, stored in a recording (so it replays on its own).
     pub scene_toml: String,
     /// The files the scene reads, stored in a recording beside it
@@ -55,6 +58,7 @@ impl Default for Options {
             record: None,
             rerun_connect: None,
             geometry_hz: physics::DEFAULT_GEOMETRY_HZ,
+            haptic_priority: None,
             scene_toml: crate::scene::DEMO_SCENE.to_owned(),
             scene_files: Vec::new(),
         }
@@ -131,6 +135,31 @@ fn key_name(name: &str) -> String {
         n.push_str("scene");
     }
     n
+}
+
+/// Moves the calling thread to the real-time FIFO scheduler at priority `priority` (1–99), or
+/// says why it stays where it is: an unprivileged process may not (it needs `CAP_SYS_NICE`, or
+/// an `RLIMIT_RTPRIO` of at least `priority`, which systemd's `LimitRTPRIO` sets).
+fn raise_priority(priority: u8) {
+    use thread_priority::{
+        RealtimeThreadSchedulePolicy, ThreadPriority, ThreadSchedulePolicy,
+        set_thread_priority_and_policy, thread_native_id,
+    };
+    let result = ThreadPriority::try_from(priority).map_err(|e| format!("{e:?}")).and_then(|p| {
+        set_thread_priority_and_policy(
+            thread_native_id(),
+            p,
+            ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
+        )
+        .map_err(|e| format!("{e:?}"))
+    });
+    match result {
+        Ok(()) => tracing::info!("haptic thread: real-time priority {priority} (SCHED_FIFO)"),
+        Err(e) => tracing::warn!(
+            "haptic thread: real-time priority {priority} refused ({e}); it runs at normal priority \
+             (allow it with CAP_SYS_NICE or LimitRTPRIO={priority} in its systemd unit)"
+        ),
+    }
 }
 
 /// Poses refused, by reason: the haptic loop's checks, then the transports'.
@@ -268,8 +297,12 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         let haptics = HapticLoop::new(Arc::clone(&shared), options.haptics);
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let (transports, sender) = (Arc::clone(&transports), zenoh_sender.clone());
+        let priority = options.haptic_priority;
         let thread =
             std::thread::Builder::new().name("incise-haptics".into()).spawn(move || {
+                if let Some(p) = priority {
+                    raise_priority(p);
+                }
                 let shm = transports.iceoryx2.as_ref().map(ShmServer::open_ports).transpose();
                 let shm = match shm {
                     Ok(shm) => shm,

@@ -13,7 +13,8 @@ pub type PoseAt = ([f64; 3], [f64; 4], f64);
 pub struct Report {
     /// Poses sent.
     pub sent: u64,
-    /// Round trips of the poses whose own force came back before the next pose was due.
+    /// Round trips of the poses whose force came back (the first force answering each), however
+    /// late.
     pub rtt_us: RoundTrips,
     /// The largest force received (N).
     pub max_force_n: f64,
@@ -148,7 +149,7 @@ impl std::fmt::Display for Report {
         let q = |x: f64| self.quantile(x).map_or("-".into(), |v| format!("{v:.0}"));
         write!(
             f,
-            "{} poses, {} answered before the next was due; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.3} N",
+            "{} poses, {} answered; round trip p50 {} µs, p99 {} µs, p99.9 {} µs, max {} µs; max force {:.3} N",
             self.sent,
             self.rtt_us.len(),
             q(0.5),
@@ -160,9 +161,15 @@ impl std::fmt::Display for Report {
     }
 }
 
+/// How many recent poses a drive remembers the send time of: a force answering an older one
+/// (more than a second late at 1 kHz) is not timed.
+const TIMED_POSES: usize = 1024;
+
 /// Sends tool `tool`'s pose `pose_at(t)` (t in seconds from the start) at `rate_hz` for
-/// `duration`, waiting after each for the force that answers it until the next is due.
-/// `on_force` sees every force received.
+/// `duration`, waiting after each for forces until the next is due. Every pose whose force
+/// comes back is timed, however late (the first force answering it: the haptic loop repeats a
+/// pose's force until a newer pose arrives), so a loaded machine's round trips are measured,
+/// not cut off at the pose period. `on_force` sees every force received.
 pub fn drive(
     client: &Client,
     tool: u32,
@@ -176,6 +183,26 @@ pub fn drive(
     let mut next = start;
     let mut report = Report::default();
     let mut sequence = 0u64;
+    // When each recent pose was sent, by sequence number modulo the ring's size.
+    let mut sent_at = vec![(0u64, start); TIMED_POSES];
+    let mut last_timed = 0u64;
+    let mut take = |force: &incise_protocol::raw::RawToolForce,
+                    report: &mut Report,
+                    sent_at: &[(u64, Instant)]| {
+        report.forces += 1;
+        on_force(force);
+        let n = force.force.iter().map(|c| c * c).sum::<f64>().sqrt();
+        report.max_force_n = report.max_force_n.max(n);
+        if force.flags & incise_protocol::v1::ForceFlag::Cutting as u32 != 0 {
+            report.cutting_forces += 1;
+        }
+        let s = force.pose_sequence;
+        let (seq, at) = sent_at[(s % TIMED_POSES as u64) as usize];
+        if s > last_timed && seq == s {
+            last_timed = s;
+            report.rtt_us.record(at.elapsed().as_secs_f64() * 1e6);
+        }
+    };
     while start.elapsed() < duration {
         sequence += 1;
         let (position, orientation, gripper_angle) = pose_at(start.elapsed().as_secs_f64());
@@ -186,23 +213,16 @@ pub fn drive(
             gripper_angle,
             ..RawToolPose::at(tool, position)
         };
-        let sent = Instant::now();
         next += period;
+        sent_at[(sequence % TIMED_POSES as u64) as usize] = (sequence, Instant::now());
         if client.send_pose(&pose).is_ok() {
             report.sent += 1;
-            while let Some(left) = next.checked_duration_since(Instant::now()) {
-                let Some(force) = client.recv_force(left) else { break };
-                report.forces += 1;
-                on_force(&force);
-                let n = force.force.iter().map(|c| c * c).sum::<f64>().sqrt();
-                report.max_force_n = report.max_force_n.max(n);
-                if force.flags & incise_protocol::v1::ForceFlag::Cutting as u32 != 0 {
-                    report.cutting_forces += 1;
-                }
-                if force.pose_sequence == sequence {
-                    report.rtt_us.record(sent.elapsed().as_secs_f64() * 1e6);
-                    break;
-                }
+        }
+        while let Some(left) = next.checked_duration_since(Instant::now()) {
+            let Some(force) = client.recv_force(left) else { break };
+            take(&force, &mut report, &sent_at);
+            if force.pose_sequence == sequence {
+                break;
             }
         }
         if let Some(left) = next.checked_duration_since(Instant::now()) {
@@ -210,6 +230,15 @@ pub fn drive(
         } else if next.elapsed() > 10 * period {
             // Far behind (a stall): a new schedule from now, not a burst to catch up.
             next = Instant::now();
+        }
+    }
+    // The last poses' forces, still on their way.
+    let until = Instant::now() + Duration::from_millis(100);
+    while let Some(left) = until.checked_duration_since(Instant::now()) {
+        let Some(force) = client.recv_force(left) else { break };
+        take(&force, &mut report, &sent_at);
+        if force.pose_sequence == sequence {
+            break;
         }
     }
     report

@@ -29,6 +29,7 @@ use std::time::{Duration, Instant};
 
 /// `latency`'s options.
 #[derive(clap::Args, Debug)]
+#[allow(clippy::struct_excessive_bools, reason = "command-line switches")]
 pub struct LatencyArgs {
     /// `iceoryx2` (shared memory) or `zenoh` (loopback TCP).
     #[arg(long, default_value = "iceoryx2")]
@@ -97,7 +98,10 @@ impl Tap {
         let kinds: serde_json::Map<String, serde_json::Value> = c
             .iter()
             .map(|(k, (m, b))| {
-                (k.clone(), serde_json::json!({ "messages_per_s": per(*m), "bytes_per_s": per(*b) }))
+                (
+                    k.clone(),
+                    serde_json::json!({ "messages_per_s": per(*m), "bytes_per_s": per(*b) }),
+                )
             })
             .collect();
         serde_json::Value::Object(kinds)

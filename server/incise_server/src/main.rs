@@ -81,8 +81,8 @@ struct Cli {
     /// frames whose surface changed are always taken. Scalars are taken every frame.
     #[arg(long, value_name = "HZ", default_value_t = incise_server::physics::DEFAULT_GEOMETRY_HZ)]
     geometry_hz: f64,
-    /// Run the haptic thread at this real-time priority (SCHED_FIFO, 1 to 99) where the host
-    /// allows it (root, CAP_SYS_NICE, or systemd's LimitRTPRIO); refused, it logs why and runs
+    /// Run the haptic thread at this real-time priority (`SCHED_FIFO`, 1 to 99) where the host
+    /// allows it (root, `CAP_SYS_NICE`, or systemd's `LimitRTPRIO`); refused, it logs why and runs
     /// at normal priority.
     #[arg(long, value_name = "1-99", value_parser = clap::value_parser!(u8).range(1..=99))]
     haptic_priority: Option<u8>,

@@ -38,7 +38,7 @@ pub struct Options {
     pub rerun_connect: Option<String>,
     /// How often a recording takes the organ's surface (Hz of simulated time).
     pub geometry_hz: f64,
-    /// Run the haptic thread at this real-time priority (SCHED_FIFO, 1–99) where the host
+    /// Run the haptic thread at this real-time priority (`SCHED_FIFO`, 1–99) where the host
     /// allows it; `None`: the normal scheduler.
     pub haptic_priority: Option<u8>,
     /// The scene file's text, stored in a recording (so it replays on its own).

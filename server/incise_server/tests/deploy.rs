@@ -442,7 +442,8 @@ fn after_a_router_restart_forces_resume_and_the_lost_poses_count_as_missing() {
 #[test]
 fn the_deploy_files_agree_with_the_programs_and_the_readme() {
     let deploy = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../deploy");
-    let read = |p: PathBuf| std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    let read =
+        |p: PathBuf| std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
     for entry in std::fs::read_dir(deploy.join("zenoh")).unwrap() {
         let path = entry.unwrap().path();
         let endpoints = Endpoints { config_file: Some(path.clone()), ..Endpoints::default() };
@@ -462,24 +463,32 @@ fn the_deploy_files_agree_with_the_programs_and_the_readme() {
         assert!(readmes.contains(run), "the Containerfile runs `{run}`, which no README gives");
     }
     let toolchain = read(deploy.join("../rust-toolchain.toml"));
-    let channel = toolchain.lines().find_map(|l| l.strip_prefix("channel = ")).unwrap().trim_matches('"');
+    let channel =
+        toolchain.lines().find_map(|l| l.strip_prefix("channel = ")).unwrap().trim_matches('"');
     assert!(
         containerfile.contains(&format!("FROM rust:{channel}-")),
         "the Containerfile's Rust is not the pinned {channel}"
     );
-    let bins: Vec<String> = ["server/incise_server", "server/incise_replay", "server/incise_bench", "clients/rust"]
-        .iter()
-        .flat_map(|c| {
-            read(deploy.join("..").join(c).join("Cargo.toml"))
-                .lines()
-                .filter_map(|l| l.strip_prefix("name = \"incise-").map(|n| format!("incise-{}", n.trim_end_matches('"'))))
-                .collect::<Vec<_>>()
-        })
-        .collect();
+    let bins: Vec<String> =
+        ["server/incise_server", "server/incise_replay", "server/incise_bench", "clients/rust"]
+            .iter()
+            .flat_map(|c| {
+                read(deploy.join("..").join(c).join("Cargo.toml"))
+                    .lines()
+                    .filter_map(|l| {
+                        l.strip_prefix("name = \"incise-")
+                            .map(|n| format!("incise-{}", n.trim_end_matches('"')))
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
     let copy = containerfile.lines().find(|l| l.starts_with("COPY --from=build")).unwrap();
     for word in copy.split_whitespace().filter(|w| w.contains("/target/release/")) {
         let bin = word.rsplit('/').next().unwrap();
-        assert!(bins.iter().any(|b| b == bin), "the Containerfile copies {bin}, which nothing builds");
+        assert!(
+            bins.iter().any(|b| b == bin),
+            "the Containerfile copies {bin}, which nothing builds"
+        );
     }
     // Each flag a unit passes is one its program takes.
     for (unit, exe) in [
@@ -487,7 +496,8 @@ fn the_deploy_files_agree_with_the_programs_and_the_readme() {
         ("incise-router.service", env!("CARGO_BIN_EXE_incise-router")),
     ] {
         let text = read(deploy.join("systemd").join(unit));
-        let help = String::from_utf8(Command::new(exe).arg("--help").output().unwrap().stdout).unwrap();
+        let help =
+            String::from_utf8(Command::new(exe).arg("--help").output().unwrap().stdout).unwrap();
         let exec = text.replace("\\\n", " ");
         let exec = exec.lines().find_map(|l| l.strip_prefix("ExecStart=")).unwrap();
         for flag in exec.split_whitespace().filter(|w| w.starts_with("--")) {

@@ -15,7 +15,7 @@ use std::time::Duration;
 /// A zenoh router for incise servers and clients: routes keys between them, with the access
 /// control and TLS its configuration sets. Stops on SIGINT or SIGTERM.
 #[derive(Parser, Debug)]
-#[command(version, about, long_about = None)]
+#[command(version, long_about = None)]
 struct Cli {
     /// A zenoh configuration file (json5), such as `deploy/zenoh/router-site.json5`. Without
     /// one: a router on `tcp/127.0.0.1:7447`, multicast scouting off.

@@ -248,3 +248,50 @@ impl ZenohServer {
         self.put(&self.cut, cut.encode_to_vec());
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn get(c: &zenoh::Config, key: &str) -> String {
+        c.get_json(key).unwrap()
+    }
+
+    /// A file decides what it sets (its mode included); explicit endpoints replace its own,
+    /// and settings go over everything.
+    #[test]
+    fn a_file_is_the_base_and_explicit_choices_go_over_it() {
+        let file = std::env::temp_dir().join(format!("incise-zenoh-{}.json5", std::process::id()));
+        std::fs::write(
+            &file,
+            r#"{ mode: "client", connect: { endpoints: ["tcp/10.0.0.2:7447"] },
+                 scouting: { multicast: { enabled: false } } }"#,
+        )
+        .unwrap();
+        let from_file = Endpoints { config_file: Some(file.clone()), ..Endpoints::default() };
+        let c = from_file.config("peer").unwrap();
+        assert_eq!(get(&c, "mode"), "\"client\"");
+        assert_eq!(get(&c, "connect/endpoints"), r#"["tcp/10.0.0.2:7447"]"#);
+        let over = Endpoints {
+            connect: vec!["tcp/127.0.0.1:9".into()],
+            settings: vec!["scouting/multicast/enabled: true".into()],
+            ..from_file.clone()
+        };
+        let c = over.config("peer").unwrap();
+        assert_eq!(get(&c, "connect/endpoints"), r#"["tcp/127.0.0.1:9"]"#);
+        assert_eq!(get(&c, "scouting/multicast/enabled"), "true");
+        // Without a file: the mode asked for, and no multicast.
+        let c = Endpoints::connect_to("tcp/127.0.0.1:9").config("client").unwrap();
+        assert_eq!(get(&c, "mode"), "\"client\"");
+        assert_eq!(get(&c, "scouting/multicast/enabled"), "false");
+        // Broken input says what and where.
+        let bad = Endpoints { settings: vec!["no-colon".into()], ..Endpoints::default() };
+        assert!(bad.config("peer").unwrap_err().0.contains("KEY:VALUE"));
+        let missing = Endpoints {
+            config_file: Some("/nonexistent/zenoh.json5".into()),
+            ..Endpoints::default()
+        };
+        assert!(missing.config("peer").unwrap_err().0.contains("/nonexistent/zenoh.json5"));
+        std::fs::remove_file(file).unwrap();
+    }
+}

@@ -56,6 +56,10 @@ pub struct LevelChanges {
     pub elements_changed: Vec<u32>,
     /// Elements whose voxel set shrank, with their voxel count before the update.
     pub elements_shrunk: Vec<(u32, u32)>,
+    /// Surviving elements with a corner node that changed, sorted (a subset of
+    /// `elements_changed`): what embeds in an element moves with other nodes only for these and
+    /// for added elements.
+    pub elements_renoded: Vec<u32>,
     /// New nodes with the node at the same grid point they were split from, if any.
     pub nodes_added: Vec<(u32, Option<u32>)>,
     /// Nodes that no longer exist.
@@ -341,6 +345,7 @@ struct Scratch {
     class_node: Vec<u32>,
     class_origin: Vec<u32>,
     changed: Vec<u32>,
+    renoded: Vec<u32>,
     /// Dirty cells whose elements appeared, vanished or changed face connections.
     touched: Vec<u32>,
 }
@@ -848,6 +853,7 @@ impl Level {
         }
         sc.points.sort_unstable();
         sc.points.dedup();
+        sc.renoded.clear();
         for pi in 0..sc.points.len() {
             let p = sc.points[pi];
             self.update_point(p, pdims, sc, &is_fresh, changes);
@@ -855,6 +861,9 @@ impl Level {
         sc.changed.sort_unstable();
         sc.changed.dedup();
         changes.elements_changed.clone_from(&sc.changed);
+        sc.renoded.sort_unstable();
+        sc.renoded.dedup();
+        changes.elements_renoded.clone_from(&sc.renoded);
         sc.fresh = fresh;
         dirty
     }
@@ -962,6 +971,7 @@ impl Level {
                         el.nodes[corner] = id;
                         if !is_fresh(e) {
                             sc.changed.push(e);
+                            sc.renoded.push(e);
                         }
                     }
                 }

@@ -37,8 +37,12 @@ pub struct SurfaceMapping {
     cell_vertices: Vec<Vec<u32>>,
 }
 
-/// The top-level elements whose vertices need new embeddings after `changes`: those added
-/// (split pieces), changed (voxels, neighbours or corner nodes) or shrunk; sorted.
+/// The top-level elements whose vertices need new embeddings after `changes`, sorted: those
+/// added (split pieces, which take over vertices of the element they split from) and those with a
+/// corner node that changed. An element that only lost voxels or neighbours keeps its cell and its
+/// nodes, and a removal never moves a voxel to another surviving element, so the vertices it
+/// still owns keep their weights and nodes (re-embedding them was most of a small cut's mapping
+/// update).
 #[must_use]
 pub fn changed_elements(changes: &GridChanges) -> Vec<u32> {
     let top = &changes.top;
@@ -46,8 +50,7 @@ pub fn changed_elements(changes: &GridChanges) -> Vec<u32> {
         .elements_added
         .iter()
         .map(|&(id, _)| id)
-        .chain(top.elements_changed.iter().copied())
-        .chain(top.elements_shrunk.iter().map(|&(id, _)| id))
+        .chain(top.elements_renoded.iter().copied())
         .collect();
     out.sort_unstable();
     out.dedup();

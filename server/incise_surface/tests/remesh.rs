@@ -1,6 +1,6 @@
 //! Local re-meshing (paper 1, §3: "The update of the level set surface is performed locally")
 //! equals a full extraction of the edited volume, and the surface stays a closed manifold through
-//! voxel removals and severed links.
+//! voxel removals and severed links; the embedding updated after each edit equals a fresh one.
 
 mod common;
 
@@ -9,7 +9,7 @@ use common::{
 };
 use incise_grid::GridEdit;
 use incise_grid::procedural::sphere;
-use incise_surface::{Surface, SurfaceOptions};
+use incise_surface::{Surface, SurfaceMapping, SurfaceOptions, changed_elements};
 use proptest::prelude::*;
 
 fn check_all(s: &Surface, grid: &incise_grid::BranchedGrid, o: &SurfaceOptions) {
@@ -140,7 +140,8 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(32))]
 
     /// Random cut sequences on an 8³ block (one material, or two with a surface each): after
-    /// every edit the surface is a closed manifold and equals the full re-extraction.
+    /// every edit the surface is a closed manifold and equals the full re-extraction, and its
+    /// embedding, updated only for the elements `changed_elements` names, equals a fresh one.
     #[test]
     fn random_cuts_keep_a_closed_manifold_equal_to_a_full_extraction(
         level in 1u32..=2,
@@ -155,10 +156,21 @@ proptest! {
         let mut grid = grid_of(&v, labels, level);
         let d = grid.fine().dims();
         let mut s = Surface::extract(grid.fine(), grid.spacing(), &o);
+        let mut mapping = SurfaceMapping::embed(&s, &grid, &|g| g);
         for (i, &(sever, centre, size, seed)) in edits.iter().enumerate() {
             let edit = random_edit(d, sever, centre, size, seed);
-            grid.apply(&edit).unwrap();
-            s.remesh(grid.fine(), &touched(&edit));
+            let grid_changes = grid.apply(&edit).unwrap();
+            let changes = s.remesh(grid.fine(), &touched(&edit));
+            mapping.update_by_grid_node(&s, &grid, &changed_elements(&grid_changes), &changes);
+            let fresh = SurfaceMapping::embed(&s, &grid, &|g| g);
+            for (v, vertex) in s.vertices().iter().enumerate() {
+                let v = v as u32;
+                prop_assert!(
+                    !vertex.alive || mapping.embedding(v) == fresh.embedding(v),
+                    "edit {}: vertex {} embedded as {:?}, freshly as {:?}",
+                    i, v, mapping.embedding(v), fresh.embedding(v)
+                );
+            }
             if let Err(e) = check_surface(&s) {
                 prop_assert!(false, "edit {}: {}", i, e);
             }

@@ -22,7 +22,8 @@
 use crate::contour::{CubeConfig, CubeMesh, FRONT, intact_cube, mesh_cube};
 use incise_grid::topology::FineLevel;
 use incise_math::Vec3;
-use std::collections::{BTreeSet, HashMap};
+use std::cmp::Reverse;
+use std::collections::{BTreeSet, BinaryHeap, HashMap};
 use std::hash::{BuildHasherDefault, Hasher};
 
 /// Which materials form one closed surface.
@@ -104,10 +105,13 @@ pub struct Surface {
     pub(crate) vertices: Vec<SurfaceVertex>,
     /// Live triangles using each vertex slot.
     pub(crate) uses: Vec<u32>,
-    pub(crate) free_vertices: BTreeSet<u32>,
+    /// Freed vertex slots, smallest first (a heap: a cut frees and takes a few dozen at a
+    /// time, and a tree's node allocations cost more than that).
+    pub(crate) free_vertices: BinaryHeap<Reverse<u32>>,
     pub(crate) live_vertices: usize,
     pub(crate) triangles: Vec<Triangle>,
-    pub(crate) free_triangles: BTreeSet<u32>,
+    /// Freed triangle slots, smallest first (as `free_vertices`).
+    pub(crate) free_triangles: BinaryHeap<Reverse<u32>>,
     pub(crate) live_triangles: usize,
     /// Vertex id by (voxel, group, face). Hashed, not ordered: re-meshing looks up three keys
     /// per triangle, and a tree of the liver's 50,000 vertices made that most of a cut's
@@ -203,10 +207,10 @@ impl Surface {
             inside,
             vertices: Vec::new(),
             uses: Vec::new(),
-            free_vertices: BTreeSet::new(),
+            free_vertices: BinaryHeap::new(),
             live_vertices: 0,
             triangles: Vec::new(),
-            free_triangles: BTreeSet::new(),
+            free_triangles: BinaryHeap::new(),
             live_triangles: 0,
             vertex_ids: HashMap::default(),
             cube_triangles: HashMap::default(),
@@ -508,7 +512,7 @@ impl Surface {
             self.uses[x as usize] += 1;
         }
         let tri = Triangle { v, cube, group, alive: true };
-        let id = if let Some(id) = self.free_triangles.pop_first() {
+        let id = if let Some(Reverse(id)) = self.free_triangles.pop() {
             self.triangles[id as usize] = tri;
             id
         } else {
@@ -531,7 +535,7 @@ impl Surface {
             rest: self.rest_position(key),
             alive: true,
         };
-        let id = if let Some(id) = self.free_vertices.pop_first() {
+        let id = if let Some(Reverse(id)) = self.free_vertices.pop() {
             self.vertices[id as usize] = vertex;
             self.uses[id as usize] = 0;
             id

@@ -8,6 +8,7 @@
 
 use crate::extract::{CubeScratch, Surface, VertexKey};
 use incise_grid::topology::FineLevel;
+use std::cmp::Reverse;
 
 /// What one [`Surface::remesh`] changed, as sorted slot ids.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -92,7 +93,7 @@ impl Surface {
             let id = self.add_triangle(cube, group, keys, &mut changes.vertices_added);
             changes.triangles_added.push(id);
         }
-        self.free_triangles.extend(changes.triangles_removed.iter().copied());
+        self.free_triangles.extend(changes.triangles_removed.iter().map(|&t| Reverse(t)));
         unused.sort_unstable();
         unused.dedup();
         for v in unused {
@@ -104,7 +105,7 @@ impl Surface {
                 changes.vertices_removed.push(v);
             }
         }
-        self.free_vertices.extend(changes.vertices_removed.iter().copied());
+        self.free_vertices.extend(changes.vertices_removed.iter().map(|&v| Reverse(v)));
         changes.triangles_removed.sort_unstable();
         changes.triangles_added.sort_unstable();
         changes.vertices_added.sort_unstable();

@@ -5,8 +5,14 @@
 //! the parts should add up to. Medians (µs); nothing is asserted.
 //!
 //! `cargo run --release -p incise_bench --example cut_parts [-- [--repeat N] [--parts-only]
-//! STRIDE...]` (strides such as `8,8,4`; `--repeat`: runs of each case, 3 by default;
-//! `--parts-only`: no `Simulation::cut`, for a profiler's eyes).
+//! [--evict MB] STRIDE...]` (strides such as `8,8,4`; `--repeat`: runs of each case, 3 by
+//! default; `--parts-only`: no `Simulation::cut`, for a profiler's eyes; `--evict MB`: write
+//! that much memory before each cut, untimed).
+//!
+//! Cuts timed back to back find everything they touch in the caches. In a simulation the
+//! physics, contact and cut search run between two cuts and push it out, so a frame's cut costs
+//! 2–3× more than the warm figure. `--evict 4` empties the private caches before each cut and
+//! `--evict 64` this machine's shared one as well; the frame's figures lie between the two.
 
 use incise_fem::model::State;
 use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
@@ -110,6 +116,19 @@ fn stroke(grid: &BranchedGrid, count: usize) -> Vec<u32> {
     out
 }
 
+/// Memory written before each cut (empty: none), to push the cut's data out of the caches as a
+/// simulation step between two cuts does.
+struct Evict(Vec<u64>);
+
+impl Evict {
+    fn run(&mut self) {
+        for x in &mut self.0 {
+            *x = x.wrapping_mul(3).wrapping_add(1);
+        }
+        std::hint::black_box(&self.0);
+    }
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -122,12 +141,14 @@ fn measure(
     fresh: Option<&dyn Fn() -> Simulation>,
     edits: &[GridEdit],
     repeat: usize,
+    evict: &mut Evict,
 ) -> ([f64; PARTS.len()], f64) {
     let mut parts: Vec<Vec<f64>> = vec![Vec::new(); PARTS.len()];
     let mut whole = Vec::new();
     for _ in 0..repeat {
         let mut b = body();
         for edit in edits {
+            evict.run();
             for (k, t) in b.cut(edit).into_iter().enumerate() {
                 parts[k].push(t);
             }
@@ -135,6 +156,7 @@ fn measure(
         let Some(fresh) = fresh else { continue };
         let mut sim = fresh();
         for edit in edits {
+            evict.run();
             let t = Instant::now();
             sim.cut(edit).expect("the stroke's voxels exist");
             whole.push(t.elapsed().as_secs_f64() * 1e6);
@@ -146,12 +168,13 @@ fn measure(
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let (mut strides, mut repeat, mut parts_only) = (Vec::new(), 3, false);
+    let (mut strides, mut repeat, mut parts_only, mut evict_mb) = (Vec::new(), 3, false, 0usize);
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--repeat" => repeat = args.next().ok_or("--repeat N")?.parse()?,
             "--parts-only" => parts_only = true,
+            "--evict" => evict_mb = args.next().ok_or("--evict MB")?.parse()?,
             _ => {
                 let v: Vec<usize> = a.split(',').map(str::parse).collect::<Result<_, _>>()?;
                 strides.push(<[usize; 3]>::try_from(v).map_err(|_| "a stride is x,y,z")?);
@@ -164,6 +187,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/scenes/liver_13k.toml");
     let mut scene = incise_scene::read_scene(std::path::Path::new(path))?;
     let exec = Executor::new(1, Idle::Sleep);
+    let mut evict = Evict(vec![1; evict_mb << 17]);
     print!("| voxels | elements | nodes | cut |");
     for p in PARTS {
         print!(" {p} |");
@@ -215,7 +239,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .collect();
         cases.push((format!("{} voxels, one edit", voxels.len()), vec![edit(&voxels)], repeat + 2));
         for (name, edits, repeat) in cases {
-            let (parts, whole) = measure(&body, (!parts_only).then_some(&fresh), &edits, repeat);
+            let (parts, whole) =
+                measure(&body, (!parts_only).then_some(&fresh), &edits, repeat, &mut evict);
             print!(
                 "| {} | {} | {} | {name} |",
                 grid.fine().voxel_count(),

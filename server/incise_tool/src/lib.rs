@@ -10,7 +10,9 @@
 //! - [`cut`]: what the inner shape cuts: the flood from where it enters, and a blade's swept
 //!   mid-plane for separation;
 //! - [`grasp`]: jaws that hold the surface points between them;
-//! - [`path`]: scripted tool paths (waypoints with times).
+//! - [`path`]: scripted tool paths (waypoints with times);
+//! - [`volume_contact`]: the intersection volume of closed surfaces from layered depth images,
+//!   and its gradient (organ on organ, organ on tool mesh).
 //!
 //! Pure: data in, data out; no files, threads or clocks.
 
@@ -21,6 +23,7 @@ pub mod mesh_shape;
 pub mod path;
 pub mod pose;
 pub mod shape;
+pub mod volume_contact;
 
 pub use contact::{Contact, ContactMemory, ContactPoint, ContactSettings, Linearisation, detect};
 pub use cut::{SweptBlade, flood};

@@ -1,11 +1,13 @@
 //! Volume contact from layered depth images (Faure et al. 2008, paper 1 §3): the intersection
 //! volume of closed surfaces against analytic volumes, its gradient against finite differences,
-//! and the rasteriser's tie rule (a closed surface is crossed an even number of times on every
+//! one surface overlapping itself, separation from a deep overlap, and the rasteriser's tie rule (a closed surface is crossed an even number of times on every
 //! ray, even with vertices on pixel centres).
 
 use incise_math::Vec3;
 use incise_math::mat3::{axis_angle, cross, dot, mul_vec};
-use incise_tool::volume_contact::{Ldi, TriangleSurface, View, intersection, intersection_in};
+use incise_tool::volume_contact::{
+    Ldi, TriangleSurface, View, intersection, intersection_in, self_intersection,
+};
 
 /// A closed triangle surface owning its data.
 struct Mesh {
@@ -295,4 +297,86 @@ fn a_closed_surface_is_crossed_in_pairs_on_every_ray_even_through_its_vertices()
             }
         }
     }
+}
+
+/// Both meshes as one surface (vertices of `b` after those of `a`).
+fn joined(a: &Mesh, b: &Mesh) -> Mesh {
+    let shift = a.positions.len() as u32;
+    Mesh {
+        positions: a.positions.iter().chain(&b.positions).copied().collect(),
+        triangles: a
+            .triangles
+            .iter()
+            .copied()
+            .chain(b.triangles.iter().map(|t| t.map(|v| v + shift)))
+            .collect(),
+    }
+}
+
+#[test]
+fn a_surface_overlapping_itself_has_the_volume_of_its_overlapping_parts() {
+    // One surface made of two interpenetrating spheres (a cut flap pressed into its neighbour is
+    // the same situation) is inside two layers exactly where the spheres intersect. Seen through
+    // the same pixel grid, its self-overlap and gradient are the two spheres' intersection's.
+    let a = icosphere([0.0; 3], 1.0, 3);
+    let b = icosphere([0.7, 0.5, 0.3], 0.8, 3);
+    let one = joined(&a, &b);
+    let alone = self_intersection(&a.surface(), 48);
+    assert!(alone.volume.abs() < 1e-15, "a sphere does not overlap itself: {}", alone.volume);
+    let own = self_intersection(&one.surface(), 48);
+    let region = one.surface().bounds().unwrap();
+    let pair = intersection_in(&a.surface(), &b.surface(), region, 48);
+    println!("self-overlap {:.6}, intersection {:.6}", own.volume, pair.volume);
+    assert!(own.volume > 0.3);
+    for k in 0..3 {
+        let (x, y) = (own.volume_by_axis[k], pair.volume_by_axis[k]);
+        assert!((x - y).abs() <= 1e-12 * y, "axis {k}: {x} against {y}");
+    }
+    let both: Vec<Vec3> = pair.gradient_a.iter().chain(&pair.gradient_b).copied().collect();
+    for (v, (g, h)) in own.gradient.iter().zip(&both).enumerate() {
+        for k in 0..3 {
+            assert!((g[k] - h[k]).abs() <= 1e-12, "vertex {v} axis {k}: {g:?} against {h:?}");
+        }
+    }
+}
+
+#[test]
+fn following_the_gradient_separates_even_a_deep_overlap() {
+    // Two balls nearly on top of each other (centres 0.3 radius apart), no distance field: the
+    // gradient's resultant on each body points away from the other, and moving them apart along
+    // it shrinks the overlap at every step until it is gone.
+    let a = icosphere([0.0; 3], 1.0, 3);
+    let mut b = icosphere([0.3, 0.0, 0.0], 1.0, 3);
+    let sum = |g: &[Vec3]| -> Vec3 {
+        g.iter().fold([0.0; 3], |s, x| std::array::from_fn(|k| s[k] + x[k]))
+    };
+    let mut volume = f64::INFINITY;
+    for step in 0..40 {
+        let i = intersection(&a.surface(), &b.surface(), 48);
+        if i.volume <= 0.0 {
+            println!("apart after {step} steps");
+            return;
+        }
+        assert!(i.volume < volume, "step {step}: the overlap grew from {volume} to {}", i.volume);
+        volume = i.volume;
+        // ∂V/∂(translation of b) is the sum of b's vertex gradients; a's is its opposite.
+        let (ga, gb) = (sum(&i.gradient_a), sum(&i.gradient_b));
+        let n = dot(&gb, &gb).sqrt();
+        assert!(
+            gb[0] < -0.95 * n,
+            "step {step}: b is pushed along -∇ = {:?}, not away from a",
+            gb.map(|x| -x)
+        );
+        assert!(
+            (0..3).all(|k| (ga[k] + gb[k]).abs() < 0.05 * n),
+            "step {step}: {ga:?} and {gb:?} not opposite"
+        );
+        // A step of 0.1 along the direction that shrinks the overlap.
+        for p in &mut b.positions {
+            for k in 0..3 {
+                p[k] -= 0.1 * gb[k] / n;
+            }
+        }
+    }
+    panic!("still overlapping after 40 steps: {volume}");
 }

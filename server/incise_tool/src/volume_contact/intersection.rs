@@ -74,7 +74,7 @@ pub fn intersection_in(
         let area = view.pixel_area();
         let mut length = 0.0;
         for p in 0..la.pixel_count() {
-            for (start, end) in overlaps(&inside(la.pixel(p)), &inside(lb.pixel(p))) {
+            for (start, end) in overlaps(&inside(la.pixel(p), 1), &inside(lb.pixel(p), 1)) {
                 length += end.fragment.depth - start.fragment.depth;
                 for (bound, sign) in [(start, -1.0), (end, 1.0)] {
                     let (surface, gradient) = match bound.side {
@@ -83,6 +83,48 @@ pub fn intersection_in(
                     };
                     add_crossing(surface, gradient, bound.fragment, axis, sign * area);
                 }
+            }
+        }
+        out.volume_by_axis[axis] = length * area;
+    }
+    out.volume = out.volume_by_axis.iter().sum::<f64>() / 3.0;
+    out
+}
+
+/// Where one surface overlaps itself (a cut's flap pressed into the tissue beside it).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SelfIntersection {
+    /// The volume inside two of the surface's layers at once (mean of the three axes).
+    pub volume: f64,
+    /// The volume seen along x, y and z.
+    pub volume_by_axis: [f64; 3],
+    /// The volume's gradient for every vertex, as [`Intersection::gradient_a`].
+    pub gradient: Vec<Vec3>,
+}
+
+/// The volume where `surface` overlaps itself (winding number two or more: inside two of its
+/// layers at once) and its gradient, from views of `resolution` pixels per side over its bounding
+/// box. A surface that does not overlap itself has none, however it folds.
+#[must_use]
+pub fn self_intersection(surface: &TriangleSurface<'_>, resolution: usize) -> SelfIntersection {
+    let mut out = SelfIntersection {
+        gradient: vec![[0.0; 3]; surface.positions.len()],
+        ..Default::default()
+    };
+    let Some((lo, hi)) = surface.bounds() else { return out };
+    if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
+        return out;
+    }
+    for axis in 0..3 {
+        let view = View::covering(axis, lo, hi, resolution);
+        let ldi = Ldi::rasterize(surface, &view);
+        let area = view.pixel_area();
+        let mut length = 0.0;
+        for p in 0..ldi.pixel_count() {
+            for (start, end) in inside(ldi.pixel(p), 2) {
+                length += end.depth - start.depth;
+                add_crossing(surface, &mut out.gradient, start, axis, -area);
+                add_crossing(surface, &mut out.gradient, end, axis, area);
             }
         }
         out.volume_by_axis[axis] = length * area;
@@ -114,19 +156,19 @@ struct Bound<'f> {
     side: Side,
 }
 
-/// The intervals of one ray inside a surface (winding number above zero), as the crossings that
-/// begin and end them.
-fn inside(fragments: &[Fragment]) -> Vec<(&Fragment, &Fragment)> {
+/// The intervals of one ray inside at least `layers` of a surface (winding number `layers` or
+/// more), as the crossings that begin and end them.
+fn inside(fragments: &[Fragment], layers: i32) -> Vec<(&Fragment, &Fragment)> {
     let mut out = Vec::new();
     let mut winding = 0i32;
     let mut start = None;
     for f in fragments {
         let before = winding;
         winding += if f.entering { 1 } else { -1 };
-        if before <= 0 && winding > 0 {
+        if before < layers && winding >= layers {
             start = Some(f);
-        } else if before > 0
-            && winding <= 0
+        } else if before >= layers
+            && winding < layers
             && let Some(s) = start.take()
         {
             out.push((s, f));

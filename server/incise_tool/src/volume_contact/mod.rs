@@ -3,10 +3,13 @@
 //! direction that separates them. The CPU reference of the GPU kernels.
 //!
 //! - [`ldi`]: layered depth images of a closed triangle surface along one axis;
-//! - [`intersection`]: the intersection volume of two surfaces and its gradient.
+//! - [`intersection`]: the intersection volume of two surfaces, or of one surface with itself,
+//!   and its gradient.
 
 pub mod intersection;
 pub mod ldi;
 
-pub use intersection::{Intersection, intersection, intersection_in};
+pub use intersection::{
+    Intersection, SelfIntersection, intersection, intersection_in, self_intersection,
+};
 pub use ldi::{Fragment, Ldi, TriangleSurface, View};

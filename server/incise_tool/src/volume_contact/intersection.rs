@@ -64,31 +64,66 @@ pub fn intersection_in(
     resolution: usize,
 ) -> Intersection {
     let mut out = nothing(a, b);
+    each_overlap(a, b, region, resolution, |axis, area, start, end| {
+        out.volume_by_axis[axis] += area * (end.fragment.depth - start.fragment.depth);
+        for (bound, sign) in [(start, -1.0), (end, 1.0)] {
+            let (surface, gradient) = match bound.side {
+                Side::A => (a, &mut out.gradient_a),
+                Side::B => (b, &mut out.gradient_b),
+            };
+            add_crossing(surface, gradient, bound.fragment, axis, sign * area);
+        }
+    });
+    out.volume = out.volume_by_axis.iter().sum::<f64>() / 3.0;
+    out
+}
+
+/// Calls `f(axis, pixel area, start, end)` for every interval of every pixel's ray, in each of
+/// the three views over `region`, that lies inside both `a` and `b`.
+fn each_overlap<'s>(
+    a: &TriangleSurface<'s>,
+    b: &TriangleSurface<'s>,
+    region: (Vec3, Vec3),
+    resolution: usize,
+    mut f: impl FnMut(usize, f64, Bound<'_>, Bound<'_>),
+) {
     let (lo, hi) = region;
     if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
-        return out;
+        return;
     }
     for axis in 0..3 {
         let view = View::covering(axis, lo, hi, resolution);
         let (la, lb) = (Ldi::rasterize(a, &view), Ldi::rasterize(b, &view));
         let area = view.pixel_area();
-        let mut length = 0.0;
         for p in 0..la.pixel_count() {
             for (start, end) in overlaps(&inside(la.pixel(p), 1), &inside(lb.pixel(p), 1)) {
-                length += end.fragment.depth - start.fragment.depth;
-                for (bound, sign) in [(start, -1.0), (end, 1.0)] {
-                    let (surface, gradient) = match bound.side {
-                        Side::A => (a, &mut out.gradient_a),
-                        Side::B => (b, &mut out.gradient_b),
-                    };
-                    add_crossing(surface, gradient, bound.fragment, axis, sign * area);
-                }
+                f(axis, area, start, end);
             }
         }
-        out.volume_by_axis[axis] = length * area;
     }
-    out.volume = out.volume_by_axis.iter().sum::<f64>() / 3.0;
-    out
+}
+
+/// Calls `f(axis, pixel area, start, end)` for every interval of every pixel's ray, in each of
+/// the three views over its bounding box, that lies inside two of `surface`'s layers at once.
+fn each_self_overlap(
+    surface: &TriangleSurface<'_>,
+    resolution: usize,
+    mut f: impl FnMut(usize, f64, &Fragment, &Fragment),
+) {
+    let Some((lo, hi)) = surface.bounds() else { return };
+    if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
+        return;
+    }
+    for axis in 0..3 {
+        let view = View::covering(axis, lo, hi, resolution);
+        let ldi = Ldi::rasterize(surface, &view);
+        let area = view.pixel_area();
+        for p in 0..ldi.pixel_count() {
+            for (start, end) in inside(ldi.pixel(p), 2) {
+                f(axis, area, start, end);
+            }
+        }
+    }
 }
 
 /// Where one surface overlaps itself (a cut's flap pressed into the tissue beside it).
@@ -111,24 +146,11 @@ pub fn self_intersection(surface: &TriangleSurface<'_>, resolution: usize) -> Se
         gradient: vec![[0.0; 3]; surface.positions.len()],
         ..Default::default()
     };
-    let Some((lo, hi)) = surface.bounds() else { return out };
-    if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
-        return out;
-    }
-    for axis in 0..3 {
-        let view = View::covering(axis, lo, hi, resolution);
-        let ldi = Ldi::rasterize(surface, &view);
-        let area = view.pixel_area();
-        let mut length = 0.0;
-        for p in 0..ldi.pixel_count() {
-            for (start, end) in inside(ldi.pixel(p), 2) {
-                length += end.depth - start.depth;
-                add_crossing(surface, &mut out.gradient, start, axis, -area);
-                add_crossing(surface, &mut out.gradient, end, axis, area);
-            }
-        }
-        out.volume_by_axis[axis] = length * area;
-    }
+    each_self_overlap(surface, resolution, |axis, area, start, end| {
+        out.volume_by_axis[axis] += area * (end.depth - start.depth);
+        add_crossing(surface, &mut out.gradient, start, axis, -area);
+        add_crossing(surface, &mut out.gradient, end, axis, area);
+    });
     out.volume = out.volume_by_axis.iter().sum::<f64>() / 3.0;
     out
 }

@@ -68,73 +68,10 @@ fn cuboid(lo: Vec3, hi: Vec3, axis: Vec3, angle: f64) -> Mesh {
     m
 }
 
-/// An icosphere of radius `r` about `centre`, subdivided `levels` times.
+/// An icosphere of radius `r` about `centre`, subdivided `levels` times (outward normals).
 fn icosphere(centre: Vec3, r: f64, levels: usize) -> Mesh {
-    let g = f64::midpoint(1.0, 5f64.sqrt());
-    let mut unit: Vec<Vec3> = [
-        [-1.0, g, 0.0],
-        [1.0, g, 0.0],
-        [-1.0, -g, 0.0],
-        [1.0, -g, 0.0],
-        [0.0, -1.0, g],
-        [0.0, 1.0, g],
-        [0.0, -1.0, -g],
-        [0.0, 1.0, -g],
-        [g, 0.0, -1.0],
-        [g, 0.0, 1.0],
-        [-g, 0.0, -1.0],
-        [-g, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|&p| normalised(p))
-    .collect();
-    let mut triangles: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut mid = std::collections::HashMap::new();
-        let mut midpoint = |a: u32, b: u32, unit: &mut Vec<Vec3>| -> u32 {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                let (p, q) = (unit[a as usize], unit[b as usize]);
-                unit.push(normalised(std::array::from_fn(|k| p[k] + q[k])));
-                (unit.len() - 1) as u32
-            })
-        };
-        triangles = triangles
-            .iter()
-            .flat_map(|&[a, b, c]| {
-                let (ab, bc, ca) = (
-                    midpoint(a, b, &mut unit),
-                    midpoint(b, c, &mut unit),
-                    midpoint(c, a, &mut unit),
-                );
-                [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-            })
-            .collect();
-    }
-    let positions = unit.iter().map(|p| std::array::from_fn(|k| centre[k] + r * p[k])).collect();
-    let mut m = Mesh { positions, triangles };
-    m.orient_from(centre);
-    m
+    let m = incise_mesh::generate::icosphere(centre, r, levels);
+    Mesh { positions: m.vertices().to_vec(), triangles: m.triangles().to_vec() }
 }
 
 fn normalised(p: Vec3) -> Vec3 {

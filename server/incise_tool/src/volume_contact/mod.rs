@@ -3,7 +3,7 @@
 //! direction that separates them. The CPU reference of the GPU kernels.
 //!
 //! - [`ldi`]: layered depth images of a closed triangle surface along one axis;
-//! - [`intersection`]: the intersection volume of two surfaces, or of one surface with itself,
+//! - [`mod@intersection`]: the intersection volume of two surfaces, or of one surface with itself,
 //!   and its gradient.
 
 pub mod intersection;

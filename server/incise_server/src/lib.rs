@@ -11,10 +11,12 @@
 //! - `incise-forces` sends the forces over zenoh (woken by the haptic thread);
 //! - `incise-net`, a one-worker tokio runtime, publishes the frames and cuts ([`network`]);
 //! - zenoh's own runtime receives its poses and answers scene queries;
-//! - the main thread prints a status line and waits for SIGINT/SIGTERM or the demo's end.
+//! - the main thread prints a status line and waits for SIGINT/SIGTERM, the demo's end or, with
+//!   `--stop-with-parent`, the end of the process that started it ([`lifetime`]).
 
 pub mod demo;
 pub mod keyframe;
+pub mod lifetime;
 pub mod network;
 pub mod physics;
 pub mod scene;

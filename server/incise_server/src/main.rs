@@ -3,6 +3,7 @@
 use anyhow::Context;
 use clap::Parser;
 use incise_haptics::HapticSettings;
+use incise_server::lifetime::ParentWatch;
 use incise_server::server::{self, Options};
 use incise_sim::config::SceneConfig;
 use incise_transport::zenoh_link::Endpoints;
@@ -58,6 +59,10 @@ struct Cli {
     /// Seconds between status lines.
     #[arg(long, default_value_t = 5.0)]
     status_every: f64,
+    /// Stop when the process that started this one ends, even if it is killed without stopping
+    /// its children (test harnesses, a simulator's front end). Off under a service manager.
+    #[arg(long)]
+    stop_with_parent: bool,
     /// Run the demo: the embedded scene driven by two scripted clients over the real
     /// transports (a scalpel presses and cuts over iceoryx2, a grasper lifts over zenoh), then
     /// a summary of frames, rates, round-trip latencies, forces and cuts.
@@ -121,6 +126,7 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
+    let parent = ParentWatch::new(cli.stop_with_parent);
     anyhow::ensure!(
         cli.geometry_hz.is_finite() && cli.geometry_hz >= 0.0,
         "--geometry-hz must be a rate of 0 Hz or more, not {}",
@@ -221,6 +227,10 @@ fn main() -> anyhow::Result<()> {
     let every = Duration::from_secs_f64(cli.status_every.max(0.1));
     let mut last = Instant::now();
     while !stop.load(Ordering::Acquire) {
+        if parent.parent_gone() {
+            tracing::info!("the process that started this server has ended");
+            break;
+        }
         std::thread::sleep(Duration::from_millis(50));
         if last.elapsed() >= every {
             tracing::info!("{}", running.status());

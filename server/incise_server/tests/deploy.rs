@@ -41,6 +41,7 @@ impl Drop for Process {
 /// Starts `incise-router` and waits for its "routing" line.
 fn router(args: &[String]) -> Process {
     let mut child = Command::new(env!("CARGO_BIN_EXE_incise-router"))
+        .arg("--stop-with-parent")
         .args(args)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
@@ -56,7 +57,7 @@ fn router(args: &[String]) -> Process {
 /// (no iceoryx2: each station is reached through the router).
 fn server(name: &str, zenoh: &[String]) -> Process {
     let child = Command::new(env!("CARGO_BIN_EXE_incise-server"))
-        .args(["--name", name, "--no-iceoryx2", "--status-every", "60"])
+        .args(["--name", name, "--no-iceoryx2", "--status-every", "60", "--stop-with-parent"])
         .args(zenoh)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
@@ -514,5 +515,51 @@ fn the_deploy_files_agree_with_the_programs_and_the_readme() {
         for flag in exec.split_whitespace().filter(|w| w.starts_with("--")) {
             assert!(help.contains(flag), "{unit} passes {flag}, which {exe} does not take");
         }
+    }
+}
+
+/// Whether process `pid` has ended (gone, or a zombie its new parent has not reaped yet).
+fn ended(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Err(_) => true,
+        // `pid (comm) S …`: the state follows the last parenthesis.
+        Ok(stat) => {
+            stat.rsplit_once(')').is_some_and(|(_, rest)| rest.trim_start().starts_with('Z'))
+        }
+    }
+}
+
+#[test]
+fn a_router_and_a_server_started_with_stop_with_parent_end_when_their_parent_is_killed() {
+    // A shell starts both in the background and is then killed with SIGKILL, so nothing stops
+    // them: they notice that they were orphaned and end by themselves.
+    let port = free_port();
+    let script = format!(
+        "{router} --stop-with-parent --listen tcp/127.0.0.1:{port} >/dev/null 2>&1 & echo $!; \
+         {server} --stop-with-parent --no-iceoryx2 --connect tcp/127.0.0.1:{port} \
+         --name orphan >/dev/null 2>&1 & echo $!; wait",
+        router = env!("CARGO_BIN_EXE_incise-router"),
+        server = env!("CARGO_BIN_EXE_incise-server"),
+    );
+    // Killed on drop as well, so a failure below also leaves nothing running.
+    let mut shell =
+        Process(Command::new("sh").args(["-c", &script]).stdout(Stdio::piped()).spawn().unwrap());
+    let mut out = BufReader::new(shell.0.stdout.take().unwrap());
+    let mut pids = Vec::new();
+    for _ in 0..2 {
+        let mut line = String::new();
+        out.read_line(&mut line).unwrap();
+        pids.push(line.trim().parse::<u32>().unwrap());
+    }
+    // Both running first (a server that failed to start would pass the test for nothing).
+    let endpoints =
+        Endpoints { connect: vec![format!("tcp/127.0.0.1:{port}")], ..Endpoints::default() };
+    drop(client("orphan", 0, &endpoints));
+    assert!(pids.iter().all(|&p| !ended(p)), "both started: {pids:?}");
+    drop(shell);
+    let until = Instant::now() + Duration::from_secs(30);
+    while !pids.iter().all(|&p| ended(p)) {
+        assert!(Instant::now() < until, "still running after their parent was killed: {pids:?}");
+        std::thread::sleep(Duration::from_millis(50));
     }
 }

@@ -27,7 +27,7 @@ impl Server {
         let port = free_port();
         let endpoint = format!("tcp/127.0.0.1:{port}");
         let child = Command::new(env!("CARGO_BIN_EXE_incise-server"))
-            .args(["--listen", &endpoint, "--status-every", "0.5"])
+            .args(["--listen", &endpoint, "--status-every", "0.5", "--stop-with-parent"])
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()

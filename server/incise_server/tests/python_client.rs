@@ -16,7 +16,7 @@ fn the_python_client_reads_the_scene_and_feels_the_organ() {
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let mut server = Command::new(env!("CARGO_BIN_EXE_incise-server"))
-        .args(["--listen", &endpoint, "--no-iceoryx2"])
+        .args(["--listen", &endpoint, "--no-iceoryx2", "--stop-with-parent"])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()

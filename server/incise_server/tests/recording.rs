@@ -16,7 +16,7 @@ fn a_recording_survives_sigkill_up_to_its_last_closed_chunk() {
     let endpoint = format!("tcp/127.0.0.1:{port}");
     // zenoh only: the other tests' demo_organ servers serve iceoryx2.
     let mut server = Command::new(env!("CARGO_BIN_EXE_incise-server"))
-        .args(["--listen", &endpoint, "--no-iceoryx2", "--record"])
+        .args(["--listen", &endpoint, "--no-iceoryx2", "--stop-with-parent", "--record"])
         .arg(&dir)
         .stdout(Stdio::null())
         .stderr(Stdio::null())

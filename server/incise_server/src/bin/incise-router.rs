@@ -32,6 +32,10 @@ struct Cli {
     /// `zenohd --cfg` takes it, e.g. `'transport/link/tls/root_ca_certificate:"/etc/incise/tls/ca.crt"'`.
     #[arg(long = "cfg", value_name = "KEY:VALUE")]
     cfg: Vec<String>,
+    /// Stop when the process that started this one ends, even if it is killed without stopping
+    /// its children (test harnesses). Off under a service manager.
+    #[arg(long)]
+    stop_with_parent: bool,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -43,6 +47,7 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
+    let parent = incise_server::lifetime::ParentWatch::new(cli.stop_with_parent);
     let listen = if cli.listen.is_empty() && cli.config.is_none() {
         vec![format!("tcp/127.0.0.1:{DEFAULT_PORT}")]
     } else {
@@ -66,7 +71,7 @@ fn main() -> anyhow::Result<()> {
         ctrlc::set_handler(move || stop.store(true, Ordering::Release))
             .context("cannot install the SIGINT/SIGTERM handler")?;
     }
-    while !stop.load(Ordering::Acquire) {
+    while !stop.load(Ordering::Acquire) && !parent.parent_gone() {
         std::thread::sleep(Duration::from_millis(100));
     }
     tracing::info!("stopping");

@@ -27,7 +27,8 @@ pub struct MeshShape {
     bounds: (Vec3, Vec3),
 }
 
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
+/// `a − b`.
+pub(crate) fn sub(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 

@@ -8,6 +8,7 @@
 //! closed surface is crossed exactly once where its triangles meet: no double crossings and no
 //! gaps, on any grid, even with vertices exactly on pixel centres.
 
+use crate::mesh_shape::sub;
 use incise_math::Vec3;
 use incise_math::mat3::cross;
 
@@ -228,8 +229,4 @@ fn covers(e: f64, from: [f64; 2], to: [f64; 2]) -> bool {
     }
     let (du, dv) = (to[0] - from[0], to[1] - from[1]);
     dv < 0.0 || (dv == 0.0 && du > 0.0)
-}
-
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }

@@ -103,6 +103,12 @@ impl Shape {
         Ok(Self { kind: Kind::Mesh(Arc::new(MeshShape::new(mesh))), offset })
     }
 
+    /// Where the shape's origin is in the tool frame (m).
+    #[must_use]
+    pub fn offset(&self) -> Vec3 {
+        self.offset
+    }
+
     /// The primitive (`None` for a mesh).
     #[must_use]
     pub fn primitive(&self) -> Option<Primitive> {

@@ -6,7 +6,8 @@
 use incise_math::Vec3;
 use incise_math::mat3::{axis_angle, cross, dot, mul_vec};
 use incise_tool::volume_contact::{
-    Ldi, TriangleSurface, View, intersection, intersection_in, self_intersection,
+    Ldi, TriangleSurface, View, intersection, intersection_in, overlaps, self_intersection,
+    self_overlaps, self_overlaps_in,
 };
 
 /// A closed triangle surface owning its data.
@@ -316,4 +317,58 @@ fn following_the_gradient_separates_even_a_deep_overlap() {
         }
     }
     panic!("still overlapping after 40 steps: {volume}");
+}
+
+#[test]
+fn separate_overlaps_are_separate_regions_that_sum_to_the_whole() {
+    // A long bar crossed by two boxes far apart: two overlaps, each pushed by its own volume.
+    // Their volumes and gradients sum to the whole intersection's (same views), and each
+    // equals the intersection of the bar with that box alone seen through the same pixels.
+    let bar = cuboid([0.0, 0.0, 0.0], [10.0, 1.0, 1.0], [0.0, 0.0, 1.0], 0.0);
+    let left = cuboid([1.0, 0.5, 0.5], [2.0, 1.5, 1.5], [0.0, 0.0, 1.0], 0.0);
+    let right = cuboid([7.5, -0.5, 0.25], [8.0, 0.5, 1.25], [0.0, 0.0, 1.0], 0.0);
+    let boxes = joined(&left, &right);
+    let resolution = 40;
+    let regions = overlaps(&bar.surface(), &boxes.surface(), resolution);
+    assert_eq!(regions.len(), 2, "two overlaps far apart");
+    let whole = intersection(&bar.surface(), &boxes.surface(), resolution);
+    let total: f64 = regions.iter().map(|r| r.volume).sum();
+    assert!((total - whole.volume).abs() <= 1e-12 * whole.volume, "{total} ≠ {}", whole.volume);
+    let mut summed = vec![[0.0; 3]; bar.positions.len()];
+    for r in &regions {
+        for &(v, g) in &r.gradient_a {
+            for k in 0..3 {
+                summed[v as usize][k] += g[k];
+            }
+        }
+    }
+    for (v, (g, h)) in summed.iter().zip(&whole.gradient_a).enumerate() {
+        assert!((0..3).all(|k| (g[k] - h[k]).abs() <= 1e-12), "vertex {v}: {g:?} ≠ {h:?}");
+    }
+    // The regions are the bar against each box alone, seen through the same pixels (the views
+    // over the overlap of the bar's and both boxes' bounding boxes), in whichever order the
+    // views meet them first.
+    let view_box = ([1.0, 0.0, 0.25], [8.0, 1.0, 1.0]);
+    let mut alone: Vec<f64> = [&left, &right]
+        .iter()
+        .map(|other| intersection_in(&bar.surface(), &other.surface(), view_box, resolution).volume)
+        .collect();
+    let mut found: Vec<f64> = regions.iter().map(|r| r.volume).collect();
+    alone.sort_by(f64::total_cmp);
+    found.sort_by(f64::total_cmp);
+    println!("regions {found:?}, each box alone {alone:?} (true overlaps 0.1875 and 0.25)");
+    for (x, y) in found.iter().zip(&alone) {
+        assert!((x - y).abs() <= 1e-12 * y, "{x} ≠ {y}");
+    }
+    // Self-overlaps: the bar and the boxes as one surface overlap itself in the same two
+    // places; a region around the right box alone sees only that one.
+    let all = joined(&bar, &boxes);
+    let own = self_overlaps(&all.surface(), resolution);
+    assert_eq!(own.len(), 2);
+    let around = ([7.0, -1.0, 0.0], [8.5, 1.5, 1.5]);
+    let near_right = self_overlaps_in(&all.surface(), around, 32);
+    assert_eq!(near_right.len(), 1);
+    let alone = intersection_in(&bar.surface(), &right.surface(), around, 32).volume;
+    assert!((near_right[0].volume - alone).abs() <= 1e-12 * alone, "{}", near_right[0].volume);
+    assert!(near_right[0].gradient_b.is_empty(), "a self-overlap has one side");
 }

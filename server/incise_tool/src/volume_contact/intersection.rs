@@ -21,6 +21,7 @@
 //! cuts).
 
 use super::ldi::{Fragment, Ldi, TriangleSurface, View};
+use super::regions::OverlapInterval;
 use incise_math::Vec3;
 
 /// The intersection of two surfaces as three views see it.
@@ -64,7 +65,7 @@ pub fn intersection_in(
     resolution: usize,
 ) -> Intersection {
     let mut out = nothing(a, b);
-    each_overlap(a, b, region, resolution, |axis, area, start, end| {
+    each_overlap(a, b, region, resolution, |axis, _, area, start, end| {
         out.volume_by_axis[axis] += area * (end.fragment.depth - start.fragment.depth);
         for (bound, sign) in [(start, -1.0), (end, 1.0)] {
             let (surface, gradient) = match bound.side {
@@ -78,14 +79,78 @@ pub fn intersection_in(
     out
 }
 
-/// Calls `f(axis, pixel area, start, end)` for every interval of every pixel's ray, in each of
-/// the three views over `region`, that lies inside both `a` and `b`.
+/// The intervals of every pixel's ray, in each of the three views of `resolution` pixels per
+/// side over `region`, that lie inside both `a` and `b`; by view, pixel row and column, depth.
+#[must_use]
+pub fn overlap_intervals(
+    a: &TriangleSurface<'_>,
+    b: &TriangleSurface<'_>,
+    region: (Vec3, Vec3),
+    resolution: usize,
+) -> Vec<OverlapInterval> {
+    let mut out = Vec::new();
+    each_overlap(a, b, region, resolution, |axis, pixel, area, start, end| {
+        out.push(OverlapInterval {
+            axis,
+            pixel,
+            area,
+            depths: [start.fragment.depth, end.fragment.depth],
+            bounds: [start, end].map(|bd| {
+                let surface = match bd.side {
+                    Side::A => a,
+                    Side::B => b,
+                };
+                (bd.side, surface.triangles[bd.fragment.triangle as usize], bd.fragment.weights)
+            }),
+        });
+    });
+    out
+}
+
+/// The intervals of every pixel's ray, in each of the three views of `resolution` pixels per
+/// side over `region`, that lie inside two of `surface`'s layers at once (all on [`Side::A`]);
+/// by view, pixel row and column, depth. Only what lies inside `region` counts: a ray runs
+/// through the whole surface, and an interval reaching past the region along it is cut at the
+/// region's face, where its bound has zero weights (moving the surface does not move that end).
+#[must_use]
+pub fn self_overlap_intervals(
+    surface: &TriangleSurface<'_>,
+    region: (Vec3, Vec3),
+    resolution: usize,
+) -> Vec<OverlapInterval> {
+    let mut out = Vec::new();
+    each_self_overlap(surface, region, resolution, |axis, pixel, area, start, end| {
+        let (lo, hi) = (region.0[axis], region.1[axis]);
+        let depths = [start.depth.max(lo), end.depth.min(hi)];
+        if depths[1] <= depths[0] {
+            return;
+        }
+        let bound = |f: &Fragment, cut: bool| {
+            (
+                Side::A,
+                surface.triangles[f.triangle as usize],
+                if cut { [0.0; 3] } else { f.weights },
+            )
+        };
+        out.push(OverlapInterval {
+            axis,
+            pixel,
+            area,
+            depths,
+            bounds: [bound(start, start.depth < lo), bound(end, end.depth > hi)],
+        });
+    });
+    out
+}
+
+/// Calls `f(axis, pixel, pixel area, start, end)` for every interval of every pixel's ray, in
+/// each of the three views over `region`, that lies inside both `a` and `b`.
 fn each_overlap<'s>(
     a: &TriangleSurface<'s>,
     b: &TriangleSurface<'s>,
     region: (Vec3, Vec3),
     resolution: usize,
-    mut f: impl FnMut(usize, f64, Bound<'_>, Bound<'_>),
+    mut f: impl FnMut(usize, [usize; 2], f64, Bound<'_>, Bound<'_>),
 ) {
     let (lo, hi) = region;
     if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
@@ -96,21 +161,22 @@ fn each_overlap<'s>(
         let (la, lb) = (Ldi::rasterize(a, &view), Ldi::rasterize(b, &view));
         let area = view.pixel_area();
         for p in 0..la.pixel_count() {
+            let pixel = [p % view.size[0], p / view.size[0]];
             for (start, end) in overlaps(&inside(la.pixel(p), 1), &inside(lb.pixel(p), 1)) {
-                f(axis, area, start, end);
+                f(axis, pixel, area, start, end);
             }
         }
     }
 }
 
-/// Calls `f(axis, pixel area, start, end)` for every interval of every pixel's ray, in each of
-/// the three views over its bounding box, that lies inside two of `surface`'s layers at once.
+/// Calls `f(axis, pixel, pixel area, start, end)` for every interval of every pixel's ray, in
+/// each of the three views over `region`, that lies inside two of `surface`'s layers at once.
 fn each_self_overlap(
     surface: &TriangleSurface<'_>,
+    (lo, hi): (Vec3, Vec3),
     resolution: usize,
-    mut f: impl FnMut(usize, f64, &Fragment, &Fragment),
+    mut f: impl FnMut(usize, [usize; 2], f64, &Fragment, &Fragment),
 ) {
-    let Some((lo, hi)) = surface.bounds() else { return };
     if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
         return;
     }
@@ -119,8 +185,9 @@ fn each_self_overlap(
         let ldi = Ldi::rasterize(surface, &view);
         let area = view.pixel_area();
         for p in 0..ldi.pixel_count() {
+            let pixel = [p % view.size[0], p / view.size[0]];
             for (start, end) in inside(ldi.pixel(p), 2) {
-                f(axis, area, start, end);
+                f(axis, pixel, area, start, end);
             }
         }
     }
@@ -146,7 +213,8 @@ pub fn self_intersection(surface: &TriangleSurface<'_>, resolution: usize) -> Se
         gradient: vec![[0.0; 3]; surface.positions.len()],
         ..Default::default()
     };
-    each_self_overlap(surface, resolution, |axis, area, start, end| {
+    let Some(region) = surface.bounds() else { return out };
+    each_self_overlap(surface, region, resolution, |axis, _, area, start, end| {
         out.volume_by_axis[axis] += area * (end.depth - start.depth);
         add_crossing(surface, &mut out.gradient, start, axis, -area);
         add_crossing(surface, &mut out.gradient, end, axis, area);
@@ -166,8 +234,10 @@ fn nothing(a: &TriangleSurface<'_>, b: &TriangleSurface<'_>) -> Intersection {
 
 /// Which surface a crossing belongs to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Side {
+pub enum Side {
+    /// The first surface (or the only one, for a surface against itself).
     A,
+    /// The second surface.
     B,
 }
 

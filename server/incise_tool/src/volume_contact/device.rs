@@ -1,0 +1,47 @@
+//! The seam between volume contact and a device that runs its per-frame passes (a GPU through
+//! `incise_gpu`): the surface's deformation and the layered depth images. The physics crates
+//! name only this trait; the device's crate implements it, and a scene that asks for one gets
+//! it through `incise_sim`'s `gpu` feature.
+//!
+//! What stays on the device between frames: the embedding of every surface vertex slot, each
+//! surface group's triangles, and the deformed vertices. What goes to it: node positions every
+//! frame; embeddings and triangles only where a cut changed them. What comes back: the overlap
+//! intervals, which the CPU sums into regions ([`super::regions_of`]), the same as for its own
+//! passes.
+
+use super::regions::OverlapInterval;
+use incise_fem::forcefield::springs::EmbeddedPoint;
+use incise_math::Vec3;
+
+/// A device for volume contact's passes.
+pub trait ContactDevice: Send {
+    /// The adapter's name and kind, for logs and reports.
+    fn name(&self) -> String;
+
+    /// Makes the device's embeddings those of `embeddings` (one per vertex slot, over node ids
+    /// `0..node_count`), sending only the slots that differ from what it holds.
+    fn set_embeddings(&mut self, embeddings: &[EmbeddedPoint], node_count: usize);
+
+    /// Makes surface group `group`'s triangles `triangles` (vertex slot triples).
+    fn set_triangles(&mut self, group: u16, triangles: &[[u32; 3]]);
+
+    /// Sends the node positions and deforms every vertex slot on the device.
+    fn deform(&mut self, nodes: &[Vec3]);
+
+    /// The deformed vertex slots, read back (a check's; the passes read them on the device).
+    fn vertices(&mut self) -> Vec<Vec3>;
+
+    /// The overlap intervals of groups `a` and `b` (or of `a` with itself, where at least two
+    /// of its layers overlap, when `b` is `None`) in views of `resolution` pixels per side over
+    /// `region`, sorted by view, pixel row and column, and depth, as the CPU's
+    /// [`super::overlap_intervals`] and [`super::self_overlap_intervals`] give them. `None`
+    /// when the pass did not fit the device's buffers (a ray with more crossings than it keeps):
+    /// the caller runs the CPU's pass instead.
+    fn overlap_intervals(
+        &mut self,
+        a: u16,
+        b: Option<u16>,
+        region: (Vec3, Vec3),
+        resolution: usize,
+    ) -> Option<Vec<OverlapInterval>>;
+}

@@ -1,11 +1,13 @@
 //! Force fields: what computes internal forces and their Jacobian. [`hex`] holds the linear and
 //! corotational hexahedra of the branched grid, [`tet`] paper 2's tensor-mass tetrahedra,
-//! [`springs`] the springs on embedded points that a tool's contact and grasp are made of; all
+//! [`springs`] the springs on embedded points that a tool's contact and grasp are made of,
+//! [`volume`] the penalty of an intersection volume (volume contact); all
 //! reach the integrators through the [`ForceField`] trait.
 
 pub mod hex;
 pub mod springs;
 pub mod tet;
+pub mod volume;
 
 use crate::model::HexModel;
 use incise_math::Vec3;

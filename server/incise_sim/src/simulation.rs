@@ -31,8 +31,8 @@ mod surgery;
 
 pub use keyframe::{KEYFRAME_INTERVAL_S, Keyframe, KeyframeError, ToolState};
 
+use surgery::Surgery;
 pub use surgery::{CutEvent, OrganSurface, SurfaceGeometry, SurgicalFrame, ToolFrame, ToolInput};
-use surgery::{Surgery, ToolSprings};
 
 /// Per-step counters (timings are measurements, not part of the deterministic state).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -80,6 +80,17 @@ pub struct StageCounters {
     pub links_severed: usize,
     /// Tetrahedra a cut removed this step.
     pub tets_removed: usize,
+    /// Scenes with `[volume_contact]`: finding the overlaps (layered depth images) and making
+    /// their penalty (ns).
+    pub volume_contact_ns: u64,
+    /// Connected overlaps pushed apart this step.
+    pub overlap_regions: usize,
+    /// Their total volume at the step's start (m³).
+    pub overlap_volume: f64,
+    /// With [`Simulation::check_gpu`] on a scene whose volume contact runs on a GPU: the
+    /// largest difference between a device pass's overlap volume and the same pass on the CPU,
+    /// relative to the larger (0 otherwise).
+    pub gpu_cpu_volume_diff: f64,
 }
 
 /// What drives one step from outside the scene (a haptic tool's contact, a script, a test):
@@ -420,7 +431,7 @@ impl Simulation {
                 State { x: tet.model.rest.clone(), v: vec![[0.0; 3]; tet.model.vertex_count()] }
             }
         };
-        let surgery = if config.tools.is_empty() {
+        let surgery = if config.tools.is_empty() && config.volume_contact.is_none() {
             None
         } else {
             let surface = match &body {
@@ -441,11 +452,90 @@ impl Simulation {
                 }
                 Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
             };
-            Some(Box::new(
-                Surgery::new(&config.tools, surface, implicit_step(&config)).map_err(build)?,
-            ))
+            let volume = match &config.volume_contact {
+                Some(spec) => Some(volume_contact(spec, &body, &surface).map_err(build)?),
+                None => None,
+            };
+            let mut surgery =
+                Surgery::new(&config.tools, surface, implicit_step(&config)).map_err(build)?;
+            if let Some(volume) = volume {
+                surgery.set_volume_contact(volume);
+            }
+            Some(Box::new(surgery))
         };
-        Ok(Self { config, calibration, body, fixed, state, index: 0, surgery })
+        let mut sim = Self { config, calibration, body, fixed, state, index: 0, surgery };
+        sim.separate_tissues().map_err(build)?;
+        Ok(sim)
+    }
+
+    /// The GPU volume contact runs on (its adapter's name), if it runs on one.
+    #[must_use]
+    pub fn gpu(&self) -> Option<String> {
+        self.surgery.as_ref()?.volume_contact()?.device_name()
+    }
+
+    /// Runs volume contact's per-frame passes (the surface's deformation, the layered depth
+    /// images) on `device` from the next step on: what a scene's `gpu` key asks for, which the
+    /// crates that build scenes for users act on (`incise_scene::attach_gpu`), so that this crate
+    /// stays free of any GPU library. Returns false, and drops the device, in a scene without
+    /// volume contact.
+    pub fn set_contact_device(
+        &mut self,
+        device: Box<dyn incise_tool::volume_contact::ContactDevice>,
+    ) -> bool {
+        match self.surgery.as_mut().and_then(|s| s.volume_contact_mut()) {
+            Some(v) => {
+                v.set_device(device);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Runs each of volume contact's GPU passes on the CPU too, and reports the largest
+    /// difference in [`StageCounters::gpu_cpu_volume_diff`] (a benchmark's check; it costs the
+    /// CPU pass).
+    pub fn check_gpu(&mut self, check: bool) {
+        if let Some(v) = self.surgery.as_mut().and_then(|s| s.volume_contact_mut()) {
+            v.set_check(check);
+        }
+    }
+
+    /// Severs the links between the voxels of the tissues `[volume_contact] pairs` names, so
+    /// that each is a body of its own (the branched grid duplicates the cells they share).
+    fn separate_tissues(&mut self) -> Result<(), String> {
+        let Some(spec) = &self.config.volume_contact else { return Ok(()) };
+        let Some(grid) = self.grid() else { return Ok(()) };
+        if spec.pairs.is_empty() {
+            return Ok(());
+        }
+        let labels: Vec<u16> = grid.materials().map(|(label, _)| label).collect();
+        let fine = grid.fine();
+        let d = fine.dims().map(|n| n as usize);
+        let label = |v: usize| fine.material(v as u32).map(|m| labels[usize::from(m)]);
+        let paired = |a: u16, b: u16| spec.pairs.contains(&[a.min(b), a.max(b)]);
+        let mut links = Vec::new();
+        for v in 0..d[0] * d[1] * d[2] {
+            let Some(a) = label(v) else { continue };
+            let at = [v % d[0], v / d[0] % d[1], v / (d[0] * d[1])];
+            for (axis, step) in [1, d[0], d[0] * d[1]].into_iter().enumerate() {
+                if at[axis] + 1 < d[axis]
+                    && let Some(b) = label(v + step)
+                    && paired(a, b)
+                {
+                    links.push((v as u32, (v + step) as u32));
+                }
+            }
+        }
+        if links.is_empty() {
+            return Ok(());
+        }
+        self.cut(&GridEdit { remove_voxels: Vec::new(), sever_links: links })
+            .map_err(|e| format!("separating the tissues of volume_contact.pairs: {e}"))?;
+        if let Some(volume) = self.surgery.as_mut().and_then(|s| s.volume_contact_mut()) {
+            volume.forget_cuts();
+        }
+        Ok(())
     }
 
     /// Advances one step, driven by `inputs`; refuses them (and takes no step) if a force is
@@ -471,8 +561,16 @@ impl Simulation {
         let mut counters = StageCounters::default();
         let mut surgical = SurgicalFrame::default();
         let mut springs = self.prepare_tools(inputs, &mut counters, &mut surgical)?;
+        let mut volume = self.prepare_volume_contact(&mut counters);
+        let mut extra: Vec<&mut dyn ForceField> = Vec::new();
+        if let Some(s) = springs.as_mut() {
+            extra.push(&mut s.field);
+        }
+        if let Some(v) = volume.as_mut() {
+            extra.push(&mut v.field);
+        }
         let t = Instant::now();
-        self.advance(inputs, springs.as_mut(), &mut counters);
+        self.advance(inputs, extra, &mut counters);
         counters.mechanics_ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
         if let Some(springs) = &springs {
             self.finish_tools(springs, &mut surgical);
@@ -481,11 +579,11 @@ impl Simulation {
     }
 
     /// The mechanics of one step: the integrator under the scene's loads, `inputs`' node forces
-    /// and the tools' springs.
+    /// and the fields beside the tissue (the tools' springs, the volume contact).
     fn advance(
         &mut self,
         inputs: &StepInputs,
-        springs: Option<&mut ToolSprings>,
+        mut extra: Vec<&mut dyn ForceField>,
         counters: &mut StageCounters,
     ) {
         let nodes = self.state.x.len();
@@ -502,7 +600,6 @@ impl Simulation {
             }
             Some(f)
         };
-        let tools = springs.map(|s| &mut s.field);
         let hex = match &mut self.body {
             Body::Hex(hex) => hex,
             Body::Tet(tet) => {
@@ -511,7 +608,9 @@ impl Simulation {
                 let external = with_inputs(&loads.nodal);
                 let mut elastic = force_field.bind(model, topology, penalty.as_ref());
                 let mut fields: Vec<&mut dyn ForceField> = vec![&mut elastic];
-                fields.extend(tools.map(|t| t as &mut dyn ForceField));
+                for t in &mut extra {
+                    fields.push(&mut **t);
+                }
                 match stepper {
                     TetStepper::Explicit(cd) => {
                         cd.step_fields(
@@ -543,8 +642,8 @@ impl Simulation {
         let driven =
             with_inputs(&hex.loads.nodal).map(|nodal| Loads { gravity: hex.loads.gravity, nodal });
         let loads = driven.as_ref().unwrap_or(&hex.loads);
-        match (&mut hex.stepper, tools) {
-            (HexStepper::Implicit(be), None) => {
+        match (&mut hex.stepper, extra.is_empty()) {
+            (HexStepper::Implicit(be), true) => {
                 let r =
                     be.step(&hex.model, &mut hex.force_field, &self.fixed, loads, &mut self.state);
                 counters.solver_iterations = r.iterations;
@@ -553,26 +652,26 @@ impl Simulation {
                 (counters.rotations_ns, counters.solve_ns, counters.update_ns) =
                     (t.rotations_ns, t.solve_ns, t.update_ns);
             }
-            // With tools the springs join the tissue: the system is solved through the fields'
-            // products (block-Jacobi CG), whose preconditioner includes the contact's blocks.
-            (HexStepper::Implicit(be), Some(tools)) => {
+            // With tools or volume contact their fields join the tissue: the system is solved
+            // through the fields' products (block-Jacobi CG), whose preconditioner includes the
+            // contact's blocks.
+            (HexStepper::Implicit(be), false) => {
                 let mut elastic = hex.force_field.bind(&hex.model);
-                let r = be.step_fields(
-                    &hex.model,
-                    &mut [&mut elastic, tools],
-                    &self.fixed,
-                    loads,
-                    &mut self.state,
-                );
+                let mut fields: Vec<&mut dyn ForceField> = vec![&mut elastic];
+                for t in &mut extra {
+                    fields.push(&mut **t);
+                }
+                let r =
+                    be.step_fields(&hex.model, &mut fields, &self.fixed, loads, &mut self.state);
                 counters.solver_iterations = r.iterations;
                 counters.solver_residual = r.relative_residual;
             }
-            (HexStepper::Explicit { dt, alpha, substeps, .. }, mut tools) => {
+            (HexStepper::Explicit { dt, alpha, substeps, .. }, _) => {
                 for _ in 0..*substeps {
                     let mut elastic = hex.force_field.bind(&hex.model);
                     let mut fields: Vec<&mut dyn ForceField> = vec![&mut elastic];
-                    if let Some(t) = tools.as_deref_mut() {
-                        fields.push(t);
+                    for t in &mut extra {
+                        fields.push(&mut **t);
                     }
                     explicit_step_fields(
                         &hex.model,
@@ -1038,6 +1137,27 @@ fn remove_voxel_cells(tet: &mut TetBody, edit: &GridEdit) -> Result<(), CutError
         }
     }
     Ok(())
+}
+
+/// The volume contact of `spec` on `body`'s `surface`.
+fn volume_contact(
+    spec: &crate::config::VolumeContactSpec,
+    body: &Body,
+    surface: &OrganSurface,
+) -> Result<surgery::VolumeContact, String> {
+    match body {
+        Body::Hex(hex) => {
+            let labels: Vec<u16> = hex.grid.materials().map(|(label, _)| label).collect();
+            let group = |label: u16| labels.iter().position(|&l| l == label).map(|m| m as u16);
+            surgery::VolumeContact::new(spec, surface, &surface.rest_positions(&[]), group)
+        }
+        Body::Tet(tet) => surgery::VolumeContact::new(
+            spec,
+            surface,
+            &surface.rest_positions(&tet.model.rest),
+            |_| None,
+        ),
+    }
 }
 
 /// The step an implicit integrator takes (s), `0` for an explicit one: what the tools' default

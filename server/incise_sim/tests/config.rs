@@ -586,3 +586,58 @@ fn the_surface_keys_are_checked() {
     let e = error(&format!("{GOOD}[surface]\nsmooth = 2\n"));
     assert!(e.to_string().contains("smooth"), "{e}");
 }
+
+#[test]
+fn the_volume_contact_keys_are_checked() {
+    use incise_sim::config::VolumeContactSpec;
+    let two = GOOD.replace(
+        "[integrator]",
+        "[[materials]]\nlabel = 2\nyoungs_modulus = 3000.0\npoisson_ratio = 0.3\ndensity = 1000.0\n[integrator]",
+    );
+    let config = SceneConfig::from_toml(
+        &format!(
+            "{two}[surface]\ninterfaces = true\n[volume_contact]\npressure = 2e6\nresolution = 48\n\
+             pairs = [[2, 1]]\nself = true\n"
+        ),
+        "t.toml",
+    )
+    .unwrap();
+    let want = VolumeContactSpec {
+        pressure: 2e6,
+        resolution: 48,
+        pairs: vec![[1, 2]],
+        self_contact: true,
+    };
+    assert_eq!(config.volume_contact, Some(want));
+    let config =
+        SceneConfig::from_toml(&format!("{GOOD}[volume_contact]\nself = true\n"), "t.toml")
+            .unwrap();
+    let spec = config.volume_contact.unwrap();
+    assert_eq!(
+        (spec.pressure, spec.resolution),
+        (VolumeContactSpec::DEFAULT_PRESSURE, VolumeContactSpec::DEFAULT_RESOLUTION)
+    );
+    assert_eq!(SceneConfig::from_toml(GOOD, "t.toml").unwrap().volume_contact, None);
+
+    // Each error names its key on the line after `[volume_contact]`.
+    let cases = [
+        (GOOD, "pressure = -1.0\nself = true", "volume_contact.pressure", "between"),
+        (GOOD, "resolution = 0\nself = true", "volume_contact.resolution", "between 1 and 1024"),
+        (GOOD, "pairs = [[1, 7]]", "volume_contact.pairs[0]", "label 7"),
+        (GOOD, "pairs = [[1, 1]]", "volume_contact.pairs[0]", "self = true"),
+        (&two, "pairs = [[1, 2]]", "volume_contact.pairs", "interfaces = true"),
+    ];
+    for (base, keys, key, says) in cases {
+        let e = error(&format!("{base}[volume_contact]\n{keys}\n"));
+        assert_eq!(where_(&e), (base.lines().count() + 2, key.to_owned()), "{e}");
+        assert!(e.to_string().contains(says), "{e}");
+    }
+    let e = error(&format!("{GOOD}[volume_contact]\npressure = 1e6\n"));
+    assert!(e.to_string().contains("nothing to do"), "{e}");
+    let e = error(&format!(
+        "{two}[surface]\ninterfaces = true\n[volume_contact]\npairs = [[1, 2], [2, 1]]\n"
+    ));
+    assert!(e.to_string().contains("repeats"), "{e}");
+    let e = error(&format!("{GOOD}[volume_contact]\nself = true\nmargin = 3\n"));
+    assert!(e.to_string().contains("margin"), "{e}");
+}

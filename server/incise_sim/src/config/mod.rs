@@ -83,6 +83,60 @@ pub struct SceneConfig {
     pub tools: Vec<ToolSpec>,
     /// How the organ's surface is built (`[surface]`).
     pub surface: SurfaceSpec,
+    /// Contact between organs and within a cut by their intersection volume (`[volume_contact]`;
+    /// `None`: none).
+    pub volume_contact: Option<VolumeContactSpec>,
+    /// Whether volume contact's per-frame passes run on a GPU (`gpu`).
+    pub gpu: GpuSetting,
+}
+
+/// `gpu`: where volume contact's per-frame passes (the surface's deformation, the layered depth
+/// images) run. A scene without `[volume_contact]` makes no device whatever it says.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum GpuSetting {
+    /// `"off"` (the default): on the CPU, in `f64`, bit for bit the same on every machine (so a
+    /// recording replays exactly anywhere).
+    #[default]
+    Off,
+    /// `"auto"`: on a hardware adapter when there is one (which one is logged), else on the CPU;
+    /// software rasterisers are passed over (the CPU path is faster than they are). The
+    /// simulation is given its device by whoever builds it for a user (`incise_scene::attach_gpu`,
+    /// which the server, the replay and the benchmarks call); a build of `incise_scene` without
+    /// its `gpu` feature has none, and runs on the CPU.
+    Auto,
+    /// `"on"`: on any adapter, a software one included; if there is none, the CPU, with a
+    /// warning (never a failure).
+    On,
+}
+
+/// `[volume_contact]`: organs, and the walls of a cut, pushed apart where their surfaces overlap,
+/// by the overlap's volume (Faure et al. 2008, paper 1 §3, Fig. 10). Each connected overlap is
+/// pressed apart with a pressure of `pressure` per metre of its depth (its volume over its area).
+#[derive(Clone, Debug, PartialEq)]
+pub struct VolumeContactSpec {
+    /// Contact pressure per metre of depth (`pressure`, N/m³; default
+    /// [`VolumeContactSpec::DEFAULT_PRESSURE`]).
+    pub pressure: f64,
+    /// Pixels per side of each of the three views over an overlap's box (`resolution`; default
+    /// [`VolumeContactSpec::DEFAULT_RESOLUTION`]): the views' cost is fixed, their pixels as fine
+    /// as the box is small.
+    pub resolution: usize,
+    /// Tissues (label pairs) that are separate bodies touching each other (`pairs`): the links
+    /// between their voxels are severed when the scene is built, and where their surfaces
+    /// overlap they are pushed apart. Needs `[surface] interfaces = true` (a surface per tissue).
+    pub pairs: Vec<[u16; 2]>,
+    /// Whether the organ's surface is pushed apart where it overlaps itself around the walls of
+    /// its cuts (`self`, default false): a cut's flaps, or the two faces of a severed cut pressed
+    /// back together.
+    pub self_contact: bool,
+}
+
+impl VolumeContactSpec {
+    /// 10 kPa per millimetre of depth: a liver resting on a kidney (about 6 kPa of contact
+    /// pressure) sinks in by under a millimetre.
+    pub const DEFAULT_PRESSURE: f64 = 1e7;
+    /// 32 pixels per side: a 5 cm overlap box has 1.6 mm pixels, finer than the organs' voxels.
+    pub const DEFAULT_RESOLUTION: usize = 32;
 }
 
 /// `[surface]`: how the organ's surface is built (for the tools, and for rendering).
@@ -582,6 +636,23 @@ struct RawScene {
     tools: Vec<Spanned<tools::RawTool>>,
     #[serde(default)]
     surface: Option<RawSurface>,
+    #[serde(default)]
+    volume_contact: Option<Spanned<RawVolumeContact>>,
+    #[serde(default)]
+    gpu: Option<Spanned<String>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawVolumeContact {
+    #[serde(default)]
+    pressure: Option<Spanned<f64>>,
+    #[serde(default)]
+    resolution: Option<Spanned<i64>>,
+    #[serde(default)]
+    pairs: Option<Spanned<Vec<Spanned<[i64; 2]>>>>,
+    #[serde(default, rename = "self")]
+    self_contact: Option<bool>,
 }
 
 #[derive(Deserialize)]
@@ -1262,6 +1333,111 @@ impl Checker<'_> {
         Ok(SurfaceSpec { interfaces: s.interfaces.unwrap_or(false), smoothing })
     }
 
+    /// `[volume_contact]`, against the scene's materials, model and surface.
+    fn volume_contact(
+        &self,
+        raw: Option<&Spanned<RawVolumeContact>>,
+        materials: &[MaterialSpec],
+        model: &Model,
+        surface: SurfaceSpec,
+    ) -> Result<Option<VolumeContactSpec>, SceneError> {
+        let Some(raw) = raw else { return Ok(None) };
+        let at = raw.span();
+        let r = raw.get_ref();
+        let pressure = match &r.pressure {
+            None => VolumeContactSpec::DEFAULT_PRESSURE,
+            Some(p) => self.within(p, "volume_contact.pressure", (1.0, 1e12), "N/m³")?,
+        };
+        let resolution = match &r.resolution {
+            None => VolumeContactSpec::DEFAULT_RESOLUTION,
+            Some(n) => {
+                let v = *n.get_ref();
+                if !(1..=1024).contains(&v) {
+                    return Err(self.invalid(
+                        n.span(),
+                        "volume_contact.resolution",
+                        format!("is {v}; it must be between 1 and 1024 pixels per side"),
+                    ));
+                }
+                v as usize
+            }
+        };
+        let mut pairs = Vec::new();
+        for (k, pair) in
+            r.pairs.as_ref().map_or(&[][..], |p| p.get_ref().as_slice()).iter().enumerate()
+        {
+            let key = format!("volume_contact.pairs[{k}]");
+            let [a, b] = *pair.get_ref();
+            for l in [a, b] {
+                if !materials.iter().any(|m| i64::from(m.label) == l) {
+                    let known: Vec<u16> = materials.iter().map(|m| m.label).collect();
+                    return Err(self.invalid(
+                        pair.span(),
+                        &key,
+                        format!(
+                            "names label {l}, which has no [[materials]] entry (labels: {known:?})"
+                        ),
+                    ));
+                }
+            }
+            if a == b {
+                return Err(self.invalid(
+                    pair.span(),
+                    &key,
+                    format!(
+                        "pairs label {a} with itself; a tissue against itself is `self = true`"
+                    ),
+                ));
+            }
+            // Both labels are materials' labels, so they fit in u16.
+            let labels = [a.min(b) as u16, a.max(b) as u16];
+            if pairs.contains(&labels) {
+                return Err(self.invalid(
+                    pair.span(),
+                    &key,
+                    format!("repeats the pair {labels:?}"),
+                ));
+            }
+            pairs.push(labels);
+        }
+        let self_contact = r.self_contact.unwrap_or(false);
+        if pairs.is_empty() && !self_contact {
+            return Err(self.invalid(
+                at,
+                "volume_contact",
+                "has nothing to do: name tissues in contact with `pairs = [[LABEL, LABEL]]`, or \
+                 push a cut's walls apart with `self = true`",
+            ));
+        }
+        if !pairs.is_empty() {
+            if let Model::TensorMass(_) = model {
+                return Err(self.invalid(
+                    r.pairs.as_ref().map_or(at.clone(), Spanned::span),
+                    "volume_contact.pairs",
+                    "needs hexahedra on a label volume (tensor-mass tetrahedra carry no tissue \
+                     labels); `self = true` works on both",
+                ));
+            }
+            if !surface.interfaces {
+                return Err(self.invalid(
+                    r.pairs.as_ref().map_or(at.clone(), Spanned::span),
+                    "volume_contact.pairs",
+                    "needs a surface per tissue: add `[surface] interfaces = true`",
+                ));
+            }
+        }
+        if matches!(model, Model::Hexahedra(HexSpec { integrator: Integrator::Static { .. }, .. }))
+        {
+            return Err(self.invalid(
+                at,
+                "volume_contact",
+                "a static scene has no motion for contact to act on; use integrator.kind = \
+                 \"implicit-euler\" or \"explicit\"",
+            ));
+        }
+        Ok(Some(VolumeContactSpec { pressure, resolution, pairs, self_contact }))
+    }
+
     /// `[exec]`.
     fn exec(&self, e: Option<&RawExec>) -> Result<ExecSpec, SceneError> {
         let Some(e) = e else { return Ok(ExecSpec::default()) };
@@ -1723,6 +1899,35 @@ impl SceneConfig {
         };
         let tools = c.tools(&raw.tools)?;
         let surface = c.surface(raw.surface.as_ref())?;
-        Ok(Self { name: raw.name, model, materials, gravity, fixed, loads, exec, tools, surface })
+        let volume_contact =
+            c.volume_contact(raw.volume_contact.as_ref(), &materials, &model, surface)?;
+        let gpu = match &raw.gpu {
+            None => GpuSetting::Off,
+            Some(g) => match g.get_ref().as_str() {
+                "off" => GpuSetting::Off,
+                "auto" => GpuSetting::Auto,
+                "on" => GpuSetting::On,
+                other => {
+                    return Err(c.invalid(
+                        g.span(),
+                        "gpu",
+                        format!("is \"{other}\"; expected \"auto\", \"on\" or \"off\""),
+                    ));
+                }
+            },
+        };
+        Ok(Self {
+            name: raw.name,
+            model,
+            materials,
+            gravity,
+            fixed,
+            loads,
+            exec,
+            tools,
+            surface,
+            volume_contact,
+            gpu,
+        })
     }
 }

@@ -11,8 +11,12 @@
 
 mod cut;
 mod surface;
+mod volume;
 
 pub use surface::OrganSurface;
+
+pub(crate) use volume::VolumeContact;
+use volume::VolumeContactStep;
 
 use super::keyframe::ToolState;
 use super::{CutError, InputError, Simulation, StageCounters, StepInputs};
@@ -168,12 +172,15 @@ pub(crate) struct ToolRig {
     grasp: Grasp,
 }
 
-/// The tools and the surface they act on.
+/// The tools, the volume contact, and the surface they act on.
 pub(crate) struct Surgery {
     rigs: Vec<ToolRig>,
     surface: OrganSurface,
-    /// Deformed surface positions at the start of the step (per vertex slot).
+    /// Deformed surface positions (per vertex slot), as of the state at the start of step
+    /// `deformed_at` (or after that step's cut).
     positions: Vec<Vec3>,
+    deformed_at: Option<u64>,
+    volume: Option<VolumeContact>,
 }
 
 /// The springs of the step's tools: all of them as one field, and which belong to which tool.
@@ -183,12 +190,30 @@ pub(crate) struct ToolSprings {
 }
 
 impl Surgery {
-    /// The tools forget what they remembered of surface vertex slots a re-mesh gave to new
-    /// vertices.
-    fn forget_reused(&mut self, changes: &SurfaceChanges) {
+    /// After a re-mesh: the tools forget what they remembered of surface vertex slots it gave
+    /// to new vertices, and the volume contact notes the new walls.
+    fn surface_changed(&mut self, changes: &SurfaceChanges) {
         for rig in &mut self.rigs {
             rig.memory.forget(&changes.vertices_added);
         }
+        if let Some(volume) = &mut self.volume {
+            volume.surface_changed(changes);
+        }
+    }
+
+    /// Adds volume contact.
+    pub(crate) fn set_volume_contact(&mut self, volume: VolumeContact) {
+        self.volume = Some(volume);
+    }
+
+    /// The volume contact, if the scene has one.
+    pub(crate) fn volume_contact_mut(&mut self) -> Option<&mut VolumeContact> {
+        self.volume.as_mut()
+    }
+
+    /// The volume contact, if the scene has one.
+    pub(crate) fn volume_contact(&self) -> Option<&VolumeContact> {
+        self.volume.as_ref()
     }
 
     /// The tools of `tools` on `surface`, in a scene whose implicit step is `dt` (s; 0 for an
@@ -223,7 +248,7 @@ impl Surgery {
                 })
             })
             .collect::<Result<Vec<_>, String>>()?;
-        Ok(Self { rigs, surface, positions: Vec::new() })
+        Ok(Self { rigs, surface, positions: Vec::new(), deformed_at: None, volume: None })
     }
 
     /// Each tool's part of a keyframe.
@@ -316,6 +341,9 @@ impl Simulation {
         counters: &mut StageCounters,
         frame: &mut SurgicalFrame,
     ) -> Result<Option<ToolSprings>, CutError> {
+        // Positions deformed before this step (by an earlier step, or before a cut or a
+        // restore between steps) are not this step's.
+        surgery.deformed_at = None;
         let dt = self.config.dt();
         let now = self.index as f64 * dt;
         for (i, rig) in surgery.rigs.iter_mut().enumerate() {
@@ -414,13 +442,46 @@ impl Simulation {
 
     /// The surface's deformed positions from the state.
     fn deform_surface(&self, surgery: &mut Surgery) {
-        let Surgery { surface, positions, .. } = surgery;
+        let Surgery { surface, positions, deformed_at, .. } = surgery;
         surface.deform(&self.state.x, self.model(), positions);
+        *deformed_at = Some(self.index);
+    }
+
+    /// The volume contact of the step, after the tools' part (and its cut): the overlaps of
+    /// the surface as it now is, as one penalty field. `None` without volume contact or
+    /// without overlap.
+    pub(super) fn prepare_volume_contact(
+        &mut self,
+        counters: &mut StageCounters,
+    ) -> Option<VolumeContactStep> {
+        let mut surgery = self.surgery.take()?;
+        let step = if surgery.volume.is_some() {
+            if surgery.deformed_at != Some(self.index) {
+                let t = Instant::now();
+                self.deform_surface(&mut surgery);
+                counters.surface_ns += elapsed(t);
+            }
+            let t = Instant::now();
+            let Surgery { surface, positions, volume, .. } = &mut *surgery;
+            let (x, model) = (&self.state.x, self.model());
+            let diff = &mut counters.gpu_cpu_volume_diff;
+            let step = volume.as_mut().and_then(|v| v.step(surface, positions, x, model, diff));
+            counters.volume_contact_ns = elapsed(t);
+            if let Some(s) = &step {
+                counters.overlap_regions = s.field.regions().len();
+                counters.overlap_volume = s.volume;
+            }
+            step
+        } else {
+            None
+        };
+        self.surgery = Some(surgery);
+        step
     }
 
     /// Each tool's contact (empty for a tool without a pose).
     fn contacts(surgery: &Surgery, dt: f64) -> Vec<Contact> {
-        let Surgery { surface, positions, rigs } = surgery;
+        let Surgery { surface, positions, rigs, .. } = surgery;
         let live = surface.live_vertices();
         rigs.iter()
             .map(|rig| {
@@ -525,7 +586,7 @@ impl Simulation {
                 None => SurfaceChanges::default(),
             },
         };
-        surgery.forget_reused(&frame.surface);
+        surgery.surface_changed(&frame.surface);
         counters.remesh_ns += elapsed(t);
         frame.cuts = events;
         if changes.is_some() {
@@ -634,7 +695,7 @@ impl Simulation {
                 None => SurfaceChanges::default(),
             },
         };
-        surgery.forget_reused(&changes);
+        surgery.surface_changed(&changes);
         self.surgery = Some(surgery);
     }
 

@@ -113,14 +113,9 @@ impl OrganSurface {
     /// On a voxel surface without the hexahedral `model` it belongs to.
     pub fn deform(&self, x: &[Vec3], model: Option<&HexModel>, out: &mut Vec<Vec3>) {
         match self {
-            Self::Voxels { mapping, model_of_grid, .. } => {
-                let model = model.expect("a voxel surface belongs to a hexahedral model");
+            Self::Voxels { mapping, .. } => {
                 // Scattered to grid-node order, where the embeddings point.
-                let mut scattered = vec![[0.0; 3]; model_of_grid.len()];
-                for (p, &g) in x.iter().zip(&model.grid_node) {
-                    scattered[g as usize] = *p;
-                }
-                mapping.deformed(&scattered, out);
+                mapping.deformed(&self.stable_nodes(x, model), out);
             }
             Self::Tetrahedra { .. } => {
                 out.clear();
@@ -145,6 +140,78 @@ impl OrganSurface {
                 point
             }
             Self::Tetrahedra { .. } => EmbeddedPoint::node(v),
+        }
+    }
+
+    /// The surface group (tissue group) of vertex `v` (0 on a tetrahedral surface).
+    #[must_use]
+    pub fn vertex_group(&self, v: u32) -> u16 {
+        match self {
+            Self::Voxels { surface, .. } => {
+                surface.vertices().get(v as usize).map_or(0, |x| x.group)
+            }
+            Self::Tetrahedra { .. } => 0,
+        }
+    }
+
+    /// The rest position of every vertex slot: the voxel surface's own, or `mesh_rest` (the
+    /// tetrahedral mesh's rest positions) for a tetrahedral surface.
+    #[must_use]
+    pub fn rest_positions(&self, mesh_rest: &[Vec3]) -> Vec<Vec3> {
+        match self {
+            Self::Voxels { surface, .. } => surface.rest_positions(),
+            Self::Tetrahedra { .. } => mesh_rest.to_vec(),
+        }
+    }
+
+    /// Every vertex slot's embedding in the numbering a device keeps across cuts (grid node
+    /// ids for a voxel surface, whose model numbering a cut changes; mesh vertices for a
+    /// tetrahedral one; dead slots weigh nothing), and how many such nodes there are.
+    #[must_use]
+    pub fn stable_embeddings(&self) -> (Vec<EmbeddedPoint>, usize) {
+        match self {
+            Self::Voxels { surface, mapping, model_of_grid, .. } => {
+                let slots = surface.vertices();
+                let points = (0..slots.len())
+                    .map(|v| {
+                        let mut point = EmbeddedPoint { nodes: [0; 8], weights: [0.0; 8] };
+                        if slots[v].alive {
+                            let e = mapping.embedding(v as u32);
+                            for k in 0..8 {
+                                if e.weights[k] != 0.0 {
+                                    point.nodes[k] = e.nodes[k];
+                                    point.weights[k] = e.weights[k];
+                                }
+                            }
+                        }
+                        point
+                    })
+                    .collect();
+                (points, model_of_grid.len())
+            }
+            Self::Tetrahedra { surface, .. } => {
+                let count = surface.vertex_count();
+                ((0..count as u32).map(EmbeddedPoint::node).collect(), count)
+            }
+        }
+    }
+
+    /// Node positions `x` (model order) in the numbering of [`Self::stable_embeddings`].
+    ///
+    /// # Panics
+    /// On a voxel surface without the hexahedral `model` it belongs to.
+    #[must_use]
+    pub fn stable_nodes(&self, x: &[Vec3], model: Option<&HexModel>) -> Vec<Vec3> {
+        match self {
+            Self::Voxels { model_of_grid, .. } => {
+                let model = model.expect("a voxel surface belongs to a hexahedral model");
+                let mut scattered = vec![[0.0; 3]; model_of_grid.len()];
+                for (p, &g) in x.iter().zip(&model.grid_node) {
+                    scattered[g as usize] = *p;
+                }
+                scattered
+            }
+            Self::Tetrahedra { .. } => x.to_vec(),
         }
     }
 

@@ -1,0 +1,255 @@
+//! Volume contact in the step (Faure et al. 2008, as paper 1 §3 and Fig. 10 use it): where two
+//! tissues' surfaces overlap, or the organ's surface overlaps itself around a cut, each connected
+//! overlap is measured from layered depth images along x, y and z
+//! (`incise_tool::volume_contact`) and pushed apart by the penalty of its volume
+//! (`incise_fem::forcefield::volume`), a force field solved with the tissue.
+//!
+//! Nothing is precomputed and no distance field is kept, so an overlap of any depth, one a fast
+//! motion or a cut left, is pushed apart the same way.
+//!
+//! **Where it looks.** A pair of tissues is tested over the overlap of their surfaces' bounding
+//! boxes. A surface against itself is tested only around the walls of its cuts: the box of the
+//! vertices cuts created (each cut's re-mesh names them), grown by two mean edge lengths. An
+//! uncut organ does not fold onto itself at the strains a surgery simulator sees, and a whole-
+//! organ self test every frame would cost more than the frame. The cut vertices are topology,
+//! rebuilt by re-applying a session's edits, so a replay from a keyframe looks where the
+//! session looked.
+//!
+//! **On a device** (a GPU, given by [`crate::Simulation::set_contact_device`] where the scene's
+//! `gpu` key asks for one; `incise_scene::attach_gpu` does that): the surface's embeddings and
+//! triangles stay on the device, which deforms the surface from the node positions sent each
+//! step and runs the layered depth images there; the overlap intervals come back and are summed
+//! here, as the CPU's own are. A pass that does not fit the device runs on the CPU.
+
+use super::OrganSurface;
+use crate::config::VolumeContactSpec;
+use incise_fem::forcefield::volume::{OverlapRegion, VolumePenalty};
+use incise_fem::{Executor, HexModel};
+use incise_math::Vec3;
+use incise_surface::SurfaceChanges;
+use incise_tool::volume_contact::{
+    ContactDevice, Overlap, TriangleSurface, overlap_intervals, regions_of, self_overlap_intervals,
+};
+
+/// A scene's volume contact between steps.
+pub(crate) struct VolumeContact {
+    spec: VolumeContactSpec,
+    /// The surface groups of each pair of tissues.
+    pairs: Vec<[u16; 2]>,
+    /// The live vertices cuts created, sorted: where the self test looks.
+    cut_vertices: Vec<u32>,
+    /// How far around the cut vertices the self test looks (m).
+    margin: f64,
+    /// The device the passes run on, if any.
+    device: Option<Box<dyn ContactDevice>>,
+    /// Whether the device's embeddings and triangles are behind the surface.
+    stale: bool,
+    /// Whether each device pass is run on the CPU too, for [`super::super::StageCounters`]'s
+    /// `gpu_cpu_volume_diff`.
+    check: bool,
+}
+
+/// What the contact found in a step.
+pub(crate) struct VolumeContactStep {
+    /// The penalty of every overlap, linearised at the step's start.
+    pub(crate) field: VolumePenalty,
+    /// The total overlap volume (m³).
+    pub(crate) volume: f64,
+}
+
+impl VolumeContact {
+    /// The contact of `spec` on `surface`, whose vertices rest at `rest` (per slot) and whose
+    /// tissues' surface groups are `group_of_label`.
+    pub(crate) fn new(
+        spec: &VolumeContactSpec,
+        surface: &OrganSurface,
+        rest: &[Vec3],
+        group_of_label: impl Fn(u16) -> Option<u16>,
+    ) -> Result<Self, String> {
+        let pairs = spec
+            .pairs
+            .iter()
+            .map(|&[a, b]| match (group_of_label(a), group_of_label(b)) {
+                (Some(ga), Some(gb)) => Ok([ga, gb]),
+                _ => Err(format!(
+                    "volume_contact.pairs: [{a}, {b}]: the volume holds no voxel of one of them"
+                )),
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        Ok(Self {
+            spec: spec.clone(),
+            pairs,
+            cut_vertices: Vec::new(),
+            margin: 2.0 * mean_edge(surface, rest),
+            device: None,
+            stale: true,
+            check: false,
+        })
+    }
+
+    /// Runs the passes on `device` from the next step on.
+    pub(crate) fn set_device(&mut self, device: Box<dyn ContactDevice>) {
+        self.device = Some(device);
+        self.stale = true;
+    }
+
+    /// The device's name, if the passes run on one.
+    pub(crate) fn device_name(&self) -> Option<String> {
+        self.device.as_ref().map(|d| d.name())
+    }
+
+    /// Whether each device pass is also run on the CPU and compared.
+    pub(crate) fn set_check(&mut self, check: bool) {
+        self.check = check;
+    }
+
+    /// Follows a re-mesh: vertices it created are cut walls, vertices it freed are gone.
+    pub(crate) fn surface_changed(&mut self, changes: &SurfaceChanges) {
+        self.stale = true;
+        self.cut_vertices.retain(|v| changes.vertices_removed.binary_search(v).is_err());
+        self.cut_vertices.extend_from_slice(&changes.vertices_added);
+        self.cut_vertices.sort_unstable();
+        self.cut_vertices.dedup();
+    }
+
+    /// Forgets every cut vertex (the severing that makes a scene's tissues separate bodies is no
+    /// cut to look around).
+    pub(crate) fn forget_cuts(&mut self) {
+        self.cut_vertices.clear();
+    }
+
+    /// The overlaps of `surface` at vertex positions `positions` (per slot), as a penalty field
+    /// linearised at node positions `x` (of `model`, for a voxel surface); `None` when nothing
+    /// overlaps. With a check, `diff` gets the largest relative difference between a device
+    /// pass's volume and the CPU's.
+    pub(crate) fn step(
+        &mut self,
+        surface: &OrganSurface,
+        positions: &[Vec3],
+        x: &[Vec3],
+        model: Option<&HexModel>,
+        diff: &mut f64,
+    ) -> Option<VolumeContactStep> {
+        let groups = triangles_by_group(surface);
+        if let Some(device) = &mut self.device {
+            if self.stale {
+                let (embeddings, nodes) = surface.stable_embeddings();
+                device.set_embeddings(&embeddings, nodes);
+                for (g, triangles) in groups.iter().enumerate() {
+                    device.set_triangles(g as u16, triangles);
+                }
+                self.stale = false;
+            }
+            device.deform(&surface.stable_nodes(x, model));
+        }
+        let group = |g: u16| groups.get(usize::from(g)).map_or(&[][..], Vec::as_slice);
+        let side = |g: u16| TriangleSurface { positions, triangles: group(g) };
+        let mut passes: Vec<(u16, Option<u16>, (Vec3, Vec3))> = Vec::new();
+        for &[a, b] in &self.pairs {
+            let (Some((alo, ahi)), Some((blo, bhi))) = (side(a).bounds(), side(b).bounds()) else {
+                continue;
+            };
+            let lo: Vec3 = std::array::from_fn(|k| alo[k].max(blo[k]));
+            let hi: Vec3 = std::array::from_fn(|k| ahi[k].min(bhi[k]));
+            if (0..3).all(|k| lo[k] < hi[k]) {
+                passes.push((a, Some(b), (lo, hi)));
+            }
+        }
+        if self.spec.self_contact {
+            for (g, region) in self.cut_regions(surface, positions) {
+                passes.push((g, None, region));
+            }
+        }
+        let resolution = self.spec.resolution;
+        let mut found: Vec<Overlap> = Vec::new();
+        for (a, b, region) in passes {
+            let on_cpu = || match b {
+                Some(b) => overlap_intervals(&side(a), &side(b), region, resolution),
+                None => self_overlap_intervals(&side(a), region, resolution),
+            };
+            let from_device =
+                self.device.as_mut().and_then(|d| d.overlap_intervals(a, b, region, resolution));
+            let intervals = match from_device {
+                Some(intervals) => {
+                    if self.check {
+                        let volume = |iv: &[incise_tool::volume_contact::OverlapInterval]| {
+                            iv.iter().map(|i| i.area * (i.depths[1] - i.depths[0])).sum::<f64>()
+                        };
+                        let (dev, cpu) = (volume(&intervals), volume(&on_cpu()));
+                        if cpu > 0.0 || dev > 0.0 {
+                            *diff = diff.max((dev - cpu).abs() / cpu.max(dev));
+                        }
+                    }
+                    intervals
+                }
+                None => on_cpu(),
+            };
+            found.extend(regions_of(&intervals, region, resolution));
+        }
+        let regions: Vec<OverlapRegion> = found
+            .iter()
+            .filter_map(|o| {
+                let gradients = o.gradient_a.iter().chain(&o.gradient_b);
+                let embedded = gradients.map(|&(v, g)| (surface.embedding(v), g));
+                OverlapRegion::new(o.volume, embedded, self.spec.pressure, x)
+            })
+            .collect();
+        if regions.is_empty() {
+            return None;
+        }
+        let field = VolumePenalty::new(regions, Executor::single_thread());
+        Some(VolumeContactStep { volume: field.volume(), field })
+    }
+
+    /// For each surface group with cut vertices, the box around them where the self test looks.
+    fn cut_regions(&self, surface: &OrganSurface, positions: &[Vec3]) -> Vec<(u16, (Vec3, Vec3))> {
+        let mut boxes: Vec<(u16, (Vec3, Vec3))> = Vec::new();
+        for &v in &self.cut_vertices {
+            let p = positions[v as usize];
+            let g = surface.vertex_group(v);
+            match boxes.iter_mut().find(|(group, _)| *group == g) {
+                Some((_, (lo, hi))) => {
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(p[k]);
+                        hi[k] = hi[k].max(p[k]);
+                    }
+                }
+                None => boxes.push((g, (p, p))),
+            }
+        }
+        boxes.sort_by_key(|&(g, _)| g);
+        for (_, (lo, hi)) in &mut boxes {
+            for k in 0..3 {
+                lo[k] -= self.margin;
+                hi[k] += self.margin;
+            }
+        }
+        boxes
+    }
+}
+
+/// The live triangles of each surface group.
+fn triangles_by_group(surface: &OrganSurface) -> Vec<Vec<[u32; 3]>> {
+    let mut groups: Vec<Vec<[u32; 3]>> = Vec::new();
+    for t in surface.triangle_slots().iter().filter(|t| t.alive) {
+        let g = usize::from(t.group);
+        if groups.len() <= g {
+            groups.resize_with(g + 1, Vec::new);
+        }
+        groups[g].push(t.v);
+    }
+    groups
+}
+
+/// The mean length of the surface's edges at `rest` (m; 0 without triangles).
+fn mean_edge(surface: &OrganSurface, rest: &[Vec3]) -> f64 {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for t in surface.triangle_slots().iter().filter(|t| t.alive) {
+        for k in 0..3 {
+            let (a, b) = (rest[t.v[k] as usize], rest[t.v[(k + 1) % 3] as usize]);
+            sum += (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f64>().sqrt();
+            count += 1;
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f64 }
+}

@@ -66,7 +66,11 @@ pub fn simulation(contents: &Contents, base: &Path) -> anyhow::Result<Simulation
     let stored = if missing { Some(unpack_files(contents)?) } else { None };
     let base = stored.as_ref().map_or(base, |(_, b)| b.as_path());
     let scene = incise_scene::scene_from_toml(toml, "<the recording's scene>", base)?;
-    let sim = Simulation::new(&scene.config, &scene.geometry, "<the recording's scene>")?;
+    let mut sim = Simulation::new(&scene.config, &scene.geometry, "<the recording's scene>")?;
+    // The scene's own choice, as the session made it: a session on a GPU replays on one.
+    if let Some(gpu) = incise_scene::attach_gpu(&mut sim) {
+        eprintln!("{gpu}");
+    }
     if let Some((dir, _)) = stored {
         let _ = std::fs::remove_dir_all(dir);
     }

@@ -160,3 +160,41 @@ fn volume_of(
         }
     }))
 }
+
+/// Gives `sim` the GPU its scene's `gpu` key asks for (`"auto"`: a hardware adapter; `"on"`:
+/// any, a software one included), when the scene has volume contact; otherwise, or when there is
+/// no such adapter, it stays on the CPU (never a failure). Returns what happened, for the log:
+/// `None` when the scene asked for nothing.
+pub fn attach_gpu(sim: &mut incise_sim::Simulation) -> Option<String> {
+    use incise_sim::config::GpuSetting;
+    let setting = sim.config().gpu;
+    if setting == GpuSetting::Off || sim.config().volume_contact.is_none() {
+        return None;
+    }
+    let key = match setting {
+        GpuSetting::On => "gpu = \"on\"",
+        _ => "gpu = \"auto\"",
+    };
+    #[cfg(feature = "gpu")]
+    {
+        let choice = match setting {
+            GpuSetting::On => incise_gpu::GpuChoice::On,
+            _ => incise_gpu::GpuChoice::Auto,
+        };
+        match incise_gpu::GpuContact::new(choice) {
+            Ok(device) => {
+                let name = incise_tool::volume_contact::ContactDevice::name(&device);
+                sim.set_contact_device(Box::new(device));
+                Some(format!("{key}: volume contact on the GPU {name}"))
+            }
+            Err(e) => Some(format!("{key}: {e}; volume contact on the CPU")),
+        }
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        Some(format!(
+            "{key}: this build has no GPU support (incise_scene's `gpu` feature); volume contact \
+             on the CPU"
+        ))
+    }
+}

@@ -208,8 +208,11 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     // The physics must leave the haptic thread a core: unless the scene says otherwise, one
     // thread fewer than the cores, whose idle workers sleep.
     let exec = config.exec.executor_beside_realtime_thread();
-    let sim = Simulation::with_executor(config, &scene.geometry, file, &exec)
+    let mut sim = Simulation::with_executor(config, &scene.geometry, file, &exec)
         .with_context(|| format!("cannot build the simulation of {file}"))?;
+    if let Some(gpu) = incise_scene::attach_gpu(&mut sim) {
+        tracing::info!("{gpu}");
+    }
     let tools: Vec<String> = config.tools.iter().map(|t| t.name.clone()).collect();
     let shared = LoopShared::new(tools.len());
     let faults = Arc::new(Faults::default());

@@ -1,0 +1,34 @@
+// The embedded surface's vertices as weighted sums of node positions (paper 1 §3: a vertex moves
+// with the element that owns its material). CPU twin: incise_surface::SurfaceMapping::deformed.
+
+struct Params {
+    vertex_count: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+// Per vertex slot: 8 node ids, then 8 weights (f32 bits); a zero weight is no node.
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> nodes: array<f32>;
+@group(0) @binding(2) var<storage, read> embeddings: array<u32>;
+@group(0) @binding(3) var<storage, read_write> vertices: array<f32>;
+
+@compute @workgroup_size(64)
+fn deform(@builtin(global_invocation_id) id: vec3<u32>) {
+    let v = id.x;
+    if v >= params.vertex_count {
+        return;
+    }
+    var p = vec3<f32>(0.0, 0.0, 0.0);
+    for (var k = 0u; k < 8u; k++) {
+        let w = bitcast<f32>(embeddings[16u * v + 8u + k]);
+        if w != 0.0 {
+            let n = embeddings[16u * v + k];
+            p += w * vec3<f32>(nodes[3u * n], nodes[3u * n + 1u], nodes[3u * n + 2u]);
+        }
+    }
+    vertices[3u * v] = p.x;
+    vertices[3u * v + 1u] = p.y;
+    vertices[3u * v + 2u] = p.z;
+}

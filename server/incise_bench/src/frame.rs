@@ -50,6 +50,20 @@ pub struct FrameArgs {
     /// without recording and their ratio, measured in this one run.
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
+    /// Where the scene's volume contact runs, overriding its `gpu` key: `on` (any adapter, a
+    /// software one included), `auto` (a hardware adapter if there is one) or `off` (the CPU).
+    /// On a GPU the script is played a second time with every device pass also run on the CPU,
+    /// for `gpu_cpu_max_diff`.
+    #[arg(long, value_name = "on|auto|off")]
+    gpu: Option<GpuArg>,
+}
+
+/// `--gpu`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum GpuArg {
+    On,
+    Auto,
+    Off,
 }
 
 /// A stage's times over the frames (ms).
@@ -94,8 +108,16 @@ struct Report {
     /// Every frame's state hash and surface change folded into one: equal for two builds that
     /// ran the script bit for bit alike (an A/B comparison's check that only the time moved).
     fingerprint: String,
-    gpu: &'static str,
+    /// The adapter volume contact ran on, or "none" (the CPU).
+    gpu: String,
+    /// On a GPU: the largest difference between a device pass's overlap volume and the CPU's,
+    /// relative to the larger, over a second playing of the script.
     gpu_cpu_max_diff: Option<f64>,
+    /// Scenes with `[volume_contact]`: frames in which something overlapped, the most
+    /// connected overlaps in one frame, and the largest total overlap volume (m³).
+    volume_contact_frames: usize,
+    overlap_regions_max: usize,
+    overlap_volume_max_m3: f64,
     /// With `--record`: frames per second of wall time over the script without recording...
     record_frame_hz_off: Option<f64>,
     /// ...and with it (the recorder thread writing the MCAP and `.rrd` files, the surface at the
@@ -300,6 +322,13 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
             Model::TensorMass(_) => bail!("--levels: a tensor-mass scene has no grid levels"),
         }
     }
+    if let Some(gpu) = args.gpu {
+        scene.config.gpu = match gpu {
+            GpuArg::On => incise_sim::config::GpuSetting::On,
+            GpuArg::Auto => incise_sim::config::GpuSetting::Auto,
+            GpuArg::Off => incise_sim::config::GpuSetting::Off,
+        };
+    }
     let exec = Executor::new(args.threads.max(1), incise_fem::Idle::Sleep);
     // A first build finds the organ's size, which sizes the tools.
     let mut probe = Simulation::with_executor(&scene.config, &scene.geometry, &args.scene, &exec)
@@ -310,6 +339,9 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
     scene.config.tools = vec![scalpel(o.unit), transector(o.unit, 1.2 * (o.hi[1] - o.lo[1]))];
     let mut sim = Simulation::with_executor(&scene.config, &scene.geometry, &args.scene, &exec)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
+    if let Some(gpu) = incise_scene::attach_gpu(&mut sim) {
+        eprintln!("frame: {gpu}");
+    }
     let voxels = sim.grid().map(|g| g.fine().voxel_count());
     let elements = match (sim.model(), sim.tet()) {
         (Some(m), _) => m.elements.len(),
@@ -339,6 +371,19 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
         .collect();
     if !stroke.is_empty() && sim.grid().is_some() {
         report.cut_stroke_batch_ms = Some(batch_cut(&scene, &args.scene, &exec, &stroke)?);
+    }
+    if sim.gpu().is_some() {
+        let mut checked =
+            Simulation::with_executor(&scene.config, &scene.geometry, &args.scene, &exec)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+        incise_scene::attach_gpu(&mut checked);
+        for _ in 0..200 {
+            checked.step(&StepInputs::default()).map_err(|e| anyhow::anyhow!("{e}"))?;
+        }
+        checked.check_gpu(true);
+        let (frames, _) = play(&mut checked, &script, &o, None)?;
+        report.gpu_cpu_max_diff =
+            Some(frames.iter().map(|(_, f)| f.counters.gpu_cpu_volume_diff).fold(0.0, f64::max));
     }
     if let Some(dir) = &args.record {
         let mut again =
@@ -516,6 +561,7 @@ fn summarise(
         stage("grid + model update", &|f| f.counters.grid_ns),
         stage("surface deform", &|f| f.counters.surface_ns),
         stage("re-mesh + re-embed", &|f| f.counters.remesh_ns),
+        stage("volume contact", &|f| f.counters.volume_contact_ns),
         stage("mechanics", &|f| f.counters.mechanics_ns),
         stage("frame", &|f| f.counters.step_ns),
     ];
@@ -563,8 +609,21 @@ fn summarise(
             .filter(|(_, f)| !f.positions.iter().flatten().all(|c| c.is_finite()))
             .count(),
         fingerprint: format!("{:016x}", fingerprint(frames.iter().map(|(_, f)| f))),
-        gpu: "none",
+        gpu: sim.gpu().unwrap_or_else(|| "none".to_owned()),
         gpu_cpu_max_diff: None,
+        volume_contact_frames: frames
+            .iter()
+            .filter(|(_, f)| f.counters.overlap_regions > 0)
+            .count(),
+        overlap_regions_max: frames
+            .iter()
+            .map(|(_, f)| f.counters.overlap_regions)
+            .max()
+            .unwrap_or(0),
+        overlap_volume_max_m3: frames
+            .iter()
+            .map(|(_, f)| f.counters.overlap_volume)
+            .fold(0.0, f64::max),
         record_frame_hz_off: None,
         record_frame_hz_on: None,
         record_ratio: None,
@@ -630,6 +689,21 @@ fn print_report(r: &Report) {
         r.non_finite_frames,
         r.fingerprint
     );
+    if r.gpu != "none" {
+        println!(
+            "volume contact on the GPU: {}; largest GPU/CPU overlap volume difference {}",
+            r.gpu,
+            r.gpu_cpu_max_diff.map_or("-".into(), |d| format!("{d:.2e}"))
+        );
+    }
+    if r.volume_contact_frames > 0 {
+        println!(
+            "volume contact: overlaps in {} frames, up to {} regions and {:.3} cm³ in one frame",
+            r.volume_contact_frames,
+            r.overlap_regions_max,
+            r.overlap_volume_max_m3 * 1e6
+        );
+    }
     if let (Some(off), Some(on), Some(ratio)) =
         (r.record_frame_hz_off, r.record_frame_hz_on, r.record_ratio)
     {

@@ -5,6 +5,7 @@ mod coexist;
 mod frame;
 mod grid_report;
 mod latency;
+mod ldi;
 mod peers;
 mod plot;
 mod progress;
@@ -44,6 +45,11 @@ enum Command {
     /// and retracts, and a second blade separates a piece; per-stage times (median, p99), the
     /// full-frame rate and the cut stroke's grid, condensation and re-mesh time.
     Frame(frame::FrameArgs),
+    /// One volume-contact pass (three layered depth images and their rays' overlap intervals)
+    /// on the CPU and on a GPU (a software one where there is no other) at several resolutions,
+    /// on a scene with a pair of tissues in contact: times, their ratio, and how far the
+    /// overlap volumes differ.
+    Ldi(ldi::LdiArgs),
     /// Pose → force round trip over zenoh or iceoryx2 between a real server on the liver and a
     /// client in another process sending poses at 1 kHz while it presses and cuts (p50, p99,
     /// p99.9, max), and the haptic thread's period jitter meanwhile; then the same client
@@ -73,6 +79,7 @@ fn main() -> anyhow::Result<()> {
         Command::TensorMass(args) => tensor_mass::run(&args),
         Command::Coexist(args) => coexist::run(&args),
         Command::Frame(args) => frame::run(&args),
+        Command::Ldi(args) => ldi::run(&args),
         Command::Latency(args) => latency::run(&args),
         Command::LatencyServer(role) => latency::serve(&role),
         Command::LatencyClient(role) => latency::client(&role),

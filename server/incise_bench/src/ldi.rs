@@ -125,9 +125,9 @@ pub fn run(args: &LdiArgs) -> anyhow::Result<()> {
     if let Some(d) = device.as_mut() {
         let (embeddings, nodes) = surface.stable_embeddings();
         d.set_embeddings(&embeddings, nodes);
-        for (g, t) in groups.iter().enumerate() {
-            d.set_triangles(g as u16, t);
-        }
+        let slots: Vec<([u32; 3], Option<u16>)> =
+            surface.triangle_slots().iter().map(|t| (t.v, t.alive.then_some(t.group))).collect();
+        d.set_triangles(&slots);
     }
     let stable = surface.stable_nodes(x, sim.model());
     let mut rows = Vec::new();

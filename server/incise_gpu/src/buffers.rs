@@ -50,6 +50,63 @@ fn storage(gpu: &Gpu, label: &str, words: usize) -> wgpu::Buffer {
     })
 }
 
+/// A storage buffer of fixed-size records that mirrors a CPU table: setting the table sends only
+/// the runs of records that differ from what the device holds.
+pub(crate) struct Mirrored {
+    words: Words,
+    /// What the device holds, word for word.
+    shadow: Vec<u32>,
+    /// Words per record.
+    stride: usize,
+}
+
+impl Mirrored {
+    pub(crate) fn new(gpu: &Gpu, label: &'static str, stride: usize) -> Self {
+        Self { words: Words::new(gpu, label, stride), shadow: Vec::new(), stride }
+    }
+
+    /// Makes the device's records `new` (a whole number of records); returns how many were sent.
+    pub(crate) fn set(&mut self, gpu: &Gpu, new: Vec<u32>) -> usize {
+        let stride = self.stride;
+        let count = new.len() / stride;
+        let replaced = self.words.reserve(gpu, new.len());
+        let same = |shadow: &[u32], r: usize| {
+            !replaced
+                && shadow.get(r * stride..(r + 1) * stride)
+                    == Some(&new[r * stride..(r + 1) * stride])
+        };
+        let (mut sent, mut r) = (0, 0);
+        while r < count {
+            if same(&self.shadow, r) {
+                r += 1;
+                continue;
+            }
+            let start = r;
+            while r < count && !same(&self.shadow, r) {
+                r += 1;
+            }
+            self.words.write(gpu, start * stride, &new[start * stride..r * stride]);
+            sent += r - start;
+        }
+        self.shadow = new;
+        sent
+    }
+
+    /// Records held.
+    pub(crate) fn len(&self) -> usize {
+        self.shadow.len() / self.stride
+    }
+
+    /// Record `r`'s words.
+    pub(crate) fn record(&self, r: usize) -> &[u32] {
+        &self.shadow[r * self.stride..(r + 1) * self.stride]
+    }
+
+    pub(crate) fn buffer(&self) -> &wgpu::Buffer {
+        self.words.buffer()
+    }
+}
+
 /// A uniform buffer of `words` 32-bit words.
 pub(crate) fn uniform(gpu: &Gpu, label: &str, words: &[u32]) -> wgpu::Buffer {
     let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {

@@ -1,10 +1,10 @@
-//! The device behind volume contact: the surface's embeddings, its groups' triangles and its
+//! The device behind volume contact: the surface's embeddings, its triangle slots and its
 //! deformed vertices kept on the GPU between frames, and the overlap passes run there.
 
-use crate::buffers::Words;
+use crate::buffers::Mirrored;
 use crate::context::{Gpu, GpuChoice, GpuError};
 use crate::deform::Deform;
-use crate::ldi::{Ldi, Triangles};
+use crate::ldi::{Ldi, Slots};
 use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_math::Vec3;
 use incise_tool::volume_contact::{ContactDevice, OverlapInterval};
@@ -14,8 +14,8 @@ pub struct GpuContact {
     gpu: Gpu,
     deform: Deform,
     ldi: Ldi,
-    /// Each surface group's triangles, on the device and on the CPU.
-    groups: Vec<Option<(Words, Vec<[u32; 3]>)>>,
+    /// Every triangle slot: three vertex slots and its group (`u32::MAX`: free).
+    triangles: Mirrored,
 }
 
 impl std::fmt::Debug for GpuContact {
@@ -35,13 +35,19 @@ impl GpuContact {
     pub fn on(gpu: Gpu) -> Self {
         let deform = Deform::new(&gpu);
         let ldi = Ldi::new(&gpu);
-        Self { gpu, deform, ldi, groups: Vec::new() }
+        let triangles = Mirrored::new(&gpu, "triangles", 4);
+        Self { gpu, deform, ldi, triangles }
     }
 
     /// The device.
     #[must_use]
     pub fn gpu(&self) -> &Gpu {
         &self.gpu
+    }
+
+    /// Whether any live triangle slot is of group `g`.
+    fn has_group(&self, g: u16) -> bool {
+        (0..self.triangles.len()).any(|t| self.triangles.record(t)[3] == u32::from(g))
     }
 }
 
@@ -54,17 +60,12 @@ impl ContactDevice for GpuContact {
         self.deform.set_embeddings(&self.gpu, embeddings, node_count);
     }
 
-    fn set_triangles(&mut self, group: u16, triangles: &[[u32; 3]]) {
-        let g = usize::from(group);
-        if self.groups.len() <= g {
-            self.groups.resize_with(g + 1, || None);
-        }
-        let words: Vec<u32> = triangles.iter().flatten().copied().collect();
-        let slot = self.groups[g]
-            .get_or_insert_with(|| (Words::new(&self.gpu, "triangles", words.len()), Vec::new()));
-        slot.0.reserve(&self.gpu, words.len());
-        slot.0.write(&self.gpu, 0, &words);
-        slot.1 = triangles.to_vec();
+    fn set_triangles(&mut self, slots: &[([u32; 3], Option<u16>)]) {
+        let words = slots
+            .iter()
+            .flat_map(|(v, group)| [v[0], v[1], v[2], group.map_or(u32::MAX, u32::from)])
+            .collect();
+        self.triangles.set(&self.gpu, words);
     }
 
     fn deform(&mut self, nodes: &[Vec3]) {
@@ -82,27 +83,22 @@ impl ContactDevice for GpuContact {
         region: (Vec3, Vec3),
         resolution: usize,
     ) -> Option<Vec<OverlapInterval>> {
-        let side = |g: u16| {
-            self.groups.get(usize::from(g)).and_then(Option::as_ref).map(|(buffer, triangles)| {
-                Triangles { buffer: buffer.buffer(), triangles: triangles.as_slice() }
-            })
-        };
-        let Some(first) = side(a) else { return Some(Vec::new()) };
-        let second = match b {
-            Some(b) => match side(b) {
-                Some(s) => Some(s),
-                None => return Some(Vec::new()),
-            },
-            None => None,
-        };
-        if first.triangles.is_empty() || second.is_some_and(|s| s.triangles.is_empty()) {
+        if !self.has_group(a) || b.is_some_and(|b| !self.has_group(b)) {
             return Some(Vec::new());
         }
+        let triangles = &self.triangles;
+        let vertices = |t: u32| {
+            let r = triangles.record(t as usize);
+            [r[0], r[1], r[2]]
+        };
+        let slots =
+            Slots { buffer: triangles.buffer(), count: triangles.len(), vertices: &vertices };
         self.ldi.overlap_intervals(
             &self.gpu,
             self.deform.vertex_buffer(),
-            first,
-            second,
+            slots,
+            a,
+            b,
             region,
             resolution,
         )

@@ -2,7 +2,7 @@
 //! weighted sum of its embedding's node positions. The embeddings stay on the device; a cut
 //! sends only the slots it changed.
 
-use crate::buffers::{Words, f, packed, uniform, unpacked};
+use crate::buffers::{Mirrored, Words, f, packed, uniform, unpacked};
 use crate::context::Gpu;
 use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_math::Vec3;
@@ -15,10 +15,8 @@ const STRIDE: usize = 16;
 pub struct Deform {
     pipeline: wgpu::ComputePipeline,
     nodes: Words,
-    embeddings: Words,
+    embeddings: Mirrored,
     vertices: Words,
-    /// What the device holds, word for word (a cut's changes are found against it).
-    shadow: Vec<u32>,
     node_count: usize,
 }
 
@@ -41,9 +39,8 @@ impl Deform {
         Self {
             pipeline: gpu.pipeline(SOURCE, "deform"),
             nodes: Words::new(gpu, "nodes", 3),
-            embeddings: Words::new(gpu, "embeddings", STRIDE),
+            embeddings: Mirrored::new(gpu, "embeddings", STRIDE),
             vertices: Words::new(gpu, "vertices", 3),
-            shadow: Vec::new(),
             node_count: 0,
         }
     }
@@ -70,37 +67,14 @@ impl Deform {
             }
         }
         self.node_count = node_count;
-        let new: Vec<u32> = embeddings.iter().flat_map(words).collect();
-        let replaced = self.embeddings.reserve(gpu, new.len());
         self.vertices.reserve(gpu, 3 * embeddings.len());
-        let mut sent = 0;
-        let mut slot = 0;
-        let count = embeddings.len();
-        while slot < count {
-            let same = |s: usize| {
-                !replaced
-                    && self.shadow.get(s * STRIDE..(s + 1) * STRIDE)
-                        == Some(&new[s * STRIDE..(s + 1) * STRIDE])
-            };
-            if same(slot) {
-                slot += 1;
-                continue;
-            }
-            let start = slot;
-            while slot < count && !same(slot) {
-                slot += 1;
-            }
-            self.embeddings.write(gpu, start * STRIDE, &new[start * STRIDE..slot * STRIDE]);
-            sent += slot - start;
-        }
-        self.shadow = new;
-        sent
+        self.embeddings.set(gpu, embeddings.iter().flat_map(words).collect())
     }
 
     /// Vertex slots.
     #[must_use]
     pub fn vertex_count(&self) -> usize {
-        self.shadow.len() / STRIDE
+        self.embeddings.len()
     }
 
     /// Sends `nodes` (at least the embeddings' node count) and deforms every slot on the

@@ -24,14 +24,16 @@ pub struct Ldi {
     status: Words,
 }
 
-/// One side of a pass: a triangle buffer on the device, and the same triangles on the CPU (the
-/// intervals name triangles; their vertices come from here).
+/// The triangle slots on the device: three vertex slots and a group per slot (`u32::MAX` for a
+/// free slot), as [`crate::GpuContact`] keeps them.
 #[derive(Clone, Copy)]
-pub struct Triangles<'a> {
-    /// Packed vertex-slot triples on the device.
+pub struct Slots<'a> {
+    /// The slots' words on the device.
     pub buffer: &'a wgpu::Buffer,
-    /// The same triangles.
-    pub triangles: &'a [[u32; 3]],
+    /// Slots.
+    pub count: usize,
+    /// Slot `t`'s vertex slots (the intervals name slots; their vertices come from here).
+    pub vertices: &'a dyn Fn(u32) -> [u32; 3],
 }
 
 impl Ldi {
@@ -48,17 +50,20 @@ impl Ldi {
         }
     }
 
-    /// The overlap intervals of `a` and `b` (of `a` with itself, two layers deep, when `b` is
-    /// `None`) in the views of `resolution` pixels per side over `region`, from the deformed
-    /// vertices in `vertices`; sorted as the CPU's passes give them (by view, pixel row and
-    /// column, depth). `None` when a pixel had more crossings than the device keeps, there were
-    /// more intervals than it has room for, or a view's buffers would pass the device's limit.
+    /// The overlap intervals of the triangles of group `a` and those of group `b` (of `a`
+    /// with itself, two layers deep, when `b` is `None`) in the views of `resolution` pixels per
+    /// side over `region`, from the deformed vertices in `vertices`; sorted as the CPU's passes
+    /// give them (by view, pixel row and column, depth). `None` when a pixel had more crossings
+    /// than the device keeps, there were more intervals than it has room for, or a view's
+    /// buffers would pass the device's limit.
+    #[allow(clippy::too_many_arguments)]
     pub fn overlap_intervals(
         &mut self,
         gpu: &Gpu,
         vertices: &wgpu::Buffer,
-        a: Triangles<'_>,
-        b: Option<Triangles<'_>>,
+        slots: Slots<'_>,
+        a: u16,
+        b: Option<u16>,
         (lo, hi): (Vec3, Vec3),
         resolution: usize,
     ) -> Option<Vec<OverlapInterval>> {
@@ -78,8 +83,6 @@ impl Ldi {
         self.fragments.reserve(gpu, fragment_words);
         self.out.reserve(gpu, max_intervals * INTERVAL);
         let views: Vec<View> = (0..3).map(|axis| View::covering(axis, lo, hi, n)).collect();
-        let (count_a, count_b) = (a.triangles.len(), b.map_or(0, |b| b.triangles.len()));
-        let b_buffer = b.map_or(a.buffer, |b| b.buffer);
         let mut encoder =
             gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
         encoder.clear_buffer(self.status.buffer(), 0, None);
@@ -97,14 +100,14 @@ impl Ldi {
                     n as u32,
                     view.axis as u32,
                     if b.is_some() { 1 } else { 2 },
-                    count_a as u32,
-                    count_b as u32,
+                    slots.count as u32,
+                    u32::from(a),
+                    b.map_or(u32::MAX - 1, u32::from),
                     CAPACITY as u32,
                     max_intervals as u32,
                     u32::from(b.is_some()),
                     f(lo[view.axis]),
                     f(hi[view.axis]),
-                    0,
                 ],
             );
             let (counts, fragments) = (self.counts.buffer(), self.fragments.buffer());
@@ -115,8 +118,7 @@ impl Ldi {
                 &[
                     (0, &params),
                     (1, vertices),
-                    (2, a.buffer),
-                    (3, b_buffer),
+                    (2, slots.buffer),
                     (4, counts),
                     (5, fragments),
                     (7, status),
@@ -133,7 +135,7 @@ impl Ldi {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
             pass.set_pipeline(&self.raster);
             pass.set_bind_group(0, raster, &[]);
-            pass.dispatch_workgroups(groups(count_a + count_b), 1, 1);
+            pass.dispatch_workgroups(groups(slots.count), 1, 1);
             pass.set_pipeline(&self.intervals);
             pass.set_bind_group(0, intervals, &[]);
             pass.dispatch_workgroups(groups(pixels), 1, 1);
@@ -153,13 +155,9 @@ impl Ldi {
                 let view = &views[axis];
                 let p = w[0] as usize;
                 let bound = |side_bit: u32, tri: u32, at: usize| {
-                    let (side, list) = if side_bit == 0 {
-                        (Side::A, a.triangles)
-                    } else {
-                        (Side::B, b.map_or(a.triangles, |b| b.triangles))
-                    };
+                    let side = if side_bit == 0 { Side::A } else { Side::B };
                     let weights = [0, 1, 2].map(|c| f64::from(f32::from_bits(w[at + c])));
-                    (side, list[tri as usize], weights)
+                    (side, (slots.vertices)(tri), weights)
                 };
                 OverlapInterval {
                     axis,

@@ -1,7 +1,9 @@
 // Layered depth images and their overlap intervals (Faure et al. 2008; paper 1 §3, Fig. 10).
 // CPU twin: incise_tool::volume_contact (ldi.rs rasterises, intersection.rs walks the rays).
 //
-// `raster`: one invocation per triangle of both surfaces; every pixel centre inside its
+// `raster`: one invocation per triangle slot (its three vertex slots and its surface group, or
+// none for a free slot); a slot of the first group is rasterised for side A, of the second for
+// side B, any other is skipped. Every pixel centre inside its
 // projection (with the CPU's tie rule on shared edges, so a closed surface is crossed once where
 // its triangles meet) gets a fragment: depth along the view's axis, triangle, whether the ray
 // enters, barycentric weights. A pixel keeps at most `capacity` fragments per surface; more set
@@ -18,8 +20,9 @@ struct View {
     size: vec2<u32>,
     axis: u32,
     layers: u32,
-    count_a: u32,
-    count_b: u32,
+    slots: u32,
+    group_a: u32,
+    group_b: u32,
     capacity: u32,
     max_intervals: u32,
     pair: u32,
@@ -27,7 +30,6 @@ struct View {
     // inside it (an interval reaching past is cut there, its cut end weighing nothing).
     depth_lo: f32,
     depth_hi: f32,
-    pad0: u32,
 }
 
 const CAP: u32 = 16u;
@@ -39,8 +41,8 @@ const INTERVAL: u32 = 12u;
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> vertices: array<f32>;
-@group(0) @binding(2) var<storage, read> tri_a: array<u32>;
-@group(0) @binding(3) var<storage, read> tri_b: array<u32>;
+// Per triangle slot: three vertex slots, then the group (0xffffffff: a free slot).
+@group(0) @binding(2) var<storage, read> triangles: array<u32>;
 @group(0) @binding(4) var<storage, read_write> counts: array<atomic<u32>>;
 @group(0) @binding(5) var<storage, read_write> fragments: array<u32>;
 @group(0) @binding(6) var<storage, read_write> intervals: array<u32>;
@@ -98,20 +100,20 @@ fn end_pixel(hi: f32, k: u32) -> u32 {
 
 @compute @workgroup_size(64)
 fn raster(@builtin(global_invocation_id) id: vec3<u32>) {
-    let i = id.x;
-    if i >= view.count_a + view.count_b {
+    let t = id.x;
+    if t >= view.slots {
         return;
     }
+    let group = triangles[4u * t + 3u];
     var side = 0u;
-    var t = i;
-    var tri: vec3<u32>;
-    if i < view.count_a {
-        tri = vec3<u32>(tri_a[3u * t], tri_a[3u * t + 1u], tri_a[3u * t + 2u]);
-    } else {
+    if group == view.group_a {
+        side = 0u;
+    } else if view.pair == 1u && group == view.group_b {
         side = 1u;
-        t = i - view.count_a;
-        tri = vec3<u32>(tri_b[3u * t], tri_b[3u * t + 1u], tri_b[3u * t + 2u]);
+    } else {
+        return;
     }
+    let tri = vec3<u32>(triangles[4u * t], triangles[4u * t + 1u], triangles[4u * t + 2u]);
     let p0 = position(tri.x);
     let p1 = position(tri.y);
     let p2 = position(tri.z);

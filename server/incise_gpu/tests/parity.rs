@@ -131,10 +131,11 @@ fn on_device(
     let identity: Vec<EmbeddedPoint> =
         (0..positions.len() as u32).map(EmbeddedPoint::node).collect();
     device.set_embeddings(&identity, positions.len());
-    device.set_triangles(0, a);
-    if let Some(b) = b {
-        device.set_triangles(1, b);
-    }
+    // Group 0's slots, then group 1's, then a free slot (skipped).
+    let mut slots: Vec<([u32; 3], Option<u16>)> = a.iter().map(|&t| (t, Some(0))).collect();
+    slots.extend(b.unwrap_or(&[]).iter().map(|&t| (t, Some(1))));
+    slots.push(([0, 1, 2], None));
+    device.set_triangles(&slots);
     device.deform(positions);
     let intervals = device
         .overlap_intervals(0, b.map(|_| 1), region, resolution)

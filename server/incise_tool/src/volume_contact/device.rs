@@ -3,8 +3,8 @@
 //! name only this trait; the device's crate implements it, and a scene that asks for one gets
 //! it through `incise_sim`'s `gpu` feature.
 //!
-//! What stays on the device between frames: the embedding of every surface vertex slot, each
-//! surface group's triangles, and the deformed vertices. What goes to it: node positions every
+//! What stays on the device between frames: the embedding of every surface vertex slot, every
+//! triangle slot with its group, and the deformed vertices. What goes to it: node positions every
 //! frame; embeddings and triangles only where a cut changed them. What comes back: the overlap
 //! intervals, which the CPU sums into regions ([`super::regions_of`]), the same as for its own
 //! passes.
@@ -22,8 +22,10 @@ pub trait ContactDevice: Send {
     /// `0..node_count`), sending only the slots that differ from what it holds.
     fn set_embeddings(&mut self, embeddings: &[EmbeddedPoint], node_count: usize);
 
-    /// Makes surface group `group`'s triangles `triangles` (vertex slot triples).
-    fn set_triangles(&mut self, group: u16, triangles: &[[u32; 3]]);
+    /// Makes the device's triangles `slots`: each slot's vertex slots and surface group, `None`
+    /// for a free slot. Only slots that differ from what it holds are sent (a cut frees and
+    /// fills a few dozen).
+    fn set_triangles(&mut self, slots: &[([u32; 3], Option<u16>)]);
 
     /// Sends the node positions and deforms every vertex slot on the device.
     fn deform(&mut self, nodes: &[Vec3]);
@@ -34,7 +36,8 @@ pub trait ContactDevice: Send {
     /// The overlap intervals of groups `a` and `b` (or of `a` with itself, where at least two
     /// of its layers overlap, when `b` is `None`) in views of `resolution` pixels per side over
     /// `region`, sorted by view, pixel row and column, and depth, as the CPU's
-    /// [`super::overlap_intervals`] and [`super::self_overlap_intervals`] give them. `None`
+    /// [`super::overlap_intervals`] and [`super::self_overlap_intervals`] give them for each
+    /// group's live triangles in slot order. `None`
     /// when the pass did not fit the device's buffers (a ray with more crossings than it keeps):
     /// the caller runs the CPU's pass instead.
     fn overlap_intervals(

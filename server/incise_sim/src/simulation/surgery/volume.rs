@@ -135,9 +135,12 @@ impl VolumeContact {
             if self.stale {
                 let (embeddings, nodes) = surface.stable_embeddings();
                 device.set_embeddings(&embeddings, nodes);
-                for (g, triangles) in groups.iter().enumerate() {
-                    device.set_triangles(g as u16, triangles);
-                }
+                let slots: Vec<([u32; 3], Option<u16>)> = surface
+                    .triangle_slots()
+                    .iter()
+                    .map(|t| (t.v, t.alive.then_some(t.group)))
+                    .collect();
+                device.set_triangles(&slots);
                 self.stale = false;
             }
             device.deform(&surface.stable_nodes(x, model));

@@ -96,14 +96,7 @@ pub fn run(args: &LdiArgs) -> anyhow::Result<()> {
         grid.materials().position(|(l, _)| l == label).map(|m| m as u16).context("a paired label")
     };
     let (ga, gb) = (group_of(la)?, group_of(lb)?);
-    let mut groups: Vec<Vec<[u32; 3]>> = Vec::new();
-    for t in surface.triangle_slots().iter().filter(|t| t.alive) {
-        let g = usize::from(t.group);
-        if groups.len() <= g {
-            groups.resize_with(g + 1, Vec::new);
-        }
-        groups[g].push(t.v);
-    }
+    let groups = surface.triangles_by_group();
     let side =
         |g: u16| TriangleSurface { positions: &positions, triangles: &groups[usize::from(g)] };
     let (a, b) = (side(ga), side(gb));
@@ -125,9 +118,7 @@ pub fn run(args: &LdiArgs) -> anyhow::Result<()> {
     if let Some(d) = device.as_mut() {
         let (embeddings, nodes) = surface.stable_embeddings();
         d.set_embeddings(&embeddings, nodes);
-        let slots: Vec<([u32; 3], Option<u16>)> =
-            surface.triangle_slots().iter().map(|t| (t.v, t.alive.then_some(t.group))).collect();
-        d.set_triangles(&slots);
+        d.set_triangles(&surface.group_slots());
     }
     let stable = surface.stable_nodes(x, sim.model());
     let mut rows = Vec::new();

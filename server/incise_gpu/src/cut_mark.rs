@@ -8,7 +8,7 @@ use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_math::Vec3;
 use incise_tool::{Pose, Primitive, Shape};
 
-const SOURCE: &str = include_str!("cut_mark.wgsl");
+const SOURCE: &str = concat!(include_str!("embedded.wgsl"), include_str!("cut_mark.wgsl"));
 
 /// The marking pass.
 pub struct CutMark {
@@ -64,19 +64,7 @@ impl CutMark {
         let params = uniform(gpu, "cut tool", &words);
         self.nodes.reserve(gpu, 3 * nodes.len());
         self.nodes.write(gpu, 0, &packed(nodes));
-        let embedded: Vec<u32> = centres
-            .iter()
-            .flat_map(|e| {
-                let mut w = [0u32; 16];
-                for k in 0..8 {
-                    if e.weights[k] != 0.0 {
-                        w[k] = e.nodes[k];
-                        w[8 + k] = f(e.weights[k]);
-                    }
-                }
-                w
-            })
-            .collect();
+        let embedded: Vec<u32> = centres.iter().flat_map(crate::deform::words).collect();
         self.voxels.reserve(gpu, embedded.len());
         self.voxels.write(gpu, 0, &embedded);
         self.marks.reserve(gpu, centres.len());

@@ -22,7 +22,8 @@ struct Tool {
 
 @group(0) @binding(0) var<uniform> tool: Tool;
 @group(0) @binding(1) var<storage, read> nodes: array<f32>;
-@group(0) @binding(2) var<storage, read> voxels: array<u32>;
+// Per candidate voxel its centre's embedding (`embedded`, from embedded.wgsl, prepended).
+@group(0) @binding(2) var<storage, read> embeddings: array<u32>;
 @group(0) @binding(3) var<storage, read_write> marks: array<u32>;
 
 fn inside_box(p: vec3<f32>, h: vec3<f32>) -> bool {
@@ -36,14 +37,7 @@ fn cut_mark(@builtin(global_invocation_id) id: vec3<u32>) {
     if v >= tool.count {
         return;
     }
-    var c = vec3<f32>(0.0, 0.0, 0.0);
-    for (var k = 0u; k < 8u; k++) {
-        let w = bitcast<f32>(voxels[16u * v + 8u + k]);
-        if w != 0.0 {
-            let n = voxels[16u * v + k];
-            c += w * vec3<f32>(nodes[3u * n], nodes[3u * n + 1u], nodes[3u * n + 2u]);
-        }
-    }
+    let c = embedded(v);
     // Into the tool's frame (the rotation's transpose), then the shape's.
     let d = c - tool.position.xyz;
     let p = vec3<f32>(dot(tool.r0.xyz, d), dot(tool.r1.xyz, d), dot(tool.r2.xyz, d)) - tool.offset.xyz;

@@ -7,7 +7,7 @@ use crate::context::Gpu;
 use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_math::Vec3;
 
-const SOURCE: &str = include_str!("deform.wgsl");
+const SOURCE: &str = concat!(include_str!("embedded.wgsl"), include_str!("deform.wgsl"));
 /// Words per embedding: 8 node ids, 8 weights.
 const STRIDE: usize = 16;
 
@@ -21,7 +21,7 @@ pub struct Deform {
 }
 
 /// An embedding's words.
-fn words(e: &EmbeddedPoint) -> [u32; STRIDE] {
+pub(crate) fn words(e: &EmbeddedPoint) -> [u32; STRIDE] {
     let mut w = [0u32; STRIDE];
     for k in 0..8 {
         // A zero weight names no node: node 0 keeps the kernel's reads in range.

@@ -1,5 +1,6 @@
 // The embedded surface's vertices as weighted sums of node positions (paper 1 §3: a vertex moves
 // with the element that owns its material). CPU twin: incise_surface::SurfaceMapping::deformed.
+// `embedded` comes from embedded.wgsl, prepended.
 
 struct Params {
     vertex_count: u32,
@@ -20,14 +21,7 @@ fn deform(@builtin(global_invocation_id) id: vec3<u32>) {
     if v >= params.vertex_count {
         return;
     }
-    var p = vec3<f32>(0.0, 0.0, 0.0);
-    for (var k = 0u; k < 8u; k++) {
-        let w = bitcast<f32>(embeddings[16u * v + 8u + k]);
-        if w != 0.0 {
-            let n = embeddings[16u * v + k];
-            p += w * vec3<f32>(nodes[3u * n], nodes[3u * n + 1u], nodes[3u * n + 2u]);
-        }
-    }
+    let p = embedded(v);
     vertices[3u * v] = p.x;
     vertices[3u * v + 1u] = p.y;
     vertices[3u * v + 2u] = p.z;

@@ -4,6 +4,8 @@
 //! [`volume`] the penalty of an intersection volume (volume contact); all
 //! reach the integrators through the [`ForceField`] trait.
 
+#[cfg(test)]
+mod checks;
 pub mod hex;
 pub mod springs;
 pub mod tet;

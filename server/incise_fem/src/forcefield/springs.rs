@@ -288,54 +288,20 @@ mod tests {
 
     #[test]
     fn forces_are_minus_the_energy_gradient_and_the_product_is_their_derivative() {
-        let field = springs();
-        let x = positions(0.7);
-        let mut f = vec![[0.0; 3]; 5];
-        field.add_forces(&x, &mut f);
         // Central differences of a quadratic are exact up to rounding: 1e-7 relative.
-        let h = 1e-6;
-        for i in 0..5 {
-            for k in 0..3 {
-                let mut xp = x.clone();
-                let mut xm = x.clone();
-                xp[i][k] += h;
-                xm[i][k] -= h;
-                let grad = (field.energy(&xp) - field.energy(&xm)) / (2.0 * h);
-                assert!((grad + f[i][k]).abs() <= 1e-7 * (1.0 + f[i][k].abs()), "{i},{k}");
-            }
-        }
-        let p = positions(1.3);
-        let mut kp = vec![[0.0; 3]; 5];
-        field.add_stiffness_times(&x, 2.0, &p, &mut kp);
-        let xp: Vec<Vec3> =
-            x.iter().zip(&p).map(|(a, b)| std::array::from_fn(|k| a[k] + h * b[k])).collect();
-        let mut fp = vec![[0.0; 3]; 5];
-        field.add_forces(&xp, &mut fp);
-        for i in 0..5 {
-            for k in 0..3 {
-                let df = (fp[i][k] - f[i][k]) / h;
-                assert!((2.0 * -df - kp[i][k]).abs() <= 1e-6 * (1.0 + kp[i][k].abs()));
-            }
-        }
+        let (x, p) = (positions(0.7), positions(1.3));
+        crate::forcefield::checks::forces_and_product(
+            &springs(),
+            &x,
+            &p,
+            (1e-7, 1e-7),
+            (1e-6, 1e-6),
+        );
     }
 
     #[test]
     fn diagonal_blocks_are_the_products_diagonal() {
-        let field = springs();
-        let x = positions(0.2);
-        let mut blocks = vec![[[0.0; 3]; 3]; 5];
-        field.add_diagonal_blocks(&x, &mut blocks);
-        for i in 0..5 {
-            for c in 0..3 {
-                let mut e = vec![[0.0; 3]; 5];
-                e[i][c] = 1.0;
-                let mut out = vec![[0.0; 3]; 5];
-                field.add_stiffness_times(&x, 1.0, &e, &mut out);
-                for r in 0..3 {
-                    assert!((out[i][r] - blocks[i][r][c]).abs() < 1e-12);
-                }
-            }
-        }
+        crate::forcefield::checks::diagonal_blocks(&springs(), &positions(0.2), (0.0, 1e-12));
     }
 
     #[test]

@@ -164,6 +164,28 @@ impl OrganSurface {
         }
     }
 
+    /// The live triangles of each surface group (tissue group; one group on a tetrahedral
+    /// surface), in slot order.
+    #[must_use]
+    pub fn triangles_by_group(&self) -> Vec<Vec<[u32; 3]>> {
+        let mut groups: Vec<Vec<[u32; 3]>> = Vec::new();
+        for t in self.triangle_slots().iter().filter(|t| t.alive) {
+            let g = usize::from(t.group);
+            if groups.len() <= g {
+                groups.resize_with(g + 1, Vec::new);
+            }
+            groups[g].push(t.v);
+        }
+        groups
+    }
+
+    /// Every triangle slot as a device keeps it: its vertex slots and its group (`None` for a
+    /// free slot).
+    #[must_use]
+    pub fn group_slots(&self) -> Vec<([u32; 3], Option<u16>)> {
+        self.triangle_slots().iter().map(|t| (t.v, t.alive.then_some(t.group))).collect()
+    }
+
     /// Every vertex slot's embedding in the numbering a device keeps across cuts (grid node
     /// ids for a voxel surface, whose model numbering a cut changes; mesh vertices for a
     /// tetrahedral one; dead slots weigh nothing), and how many such nodes there are.

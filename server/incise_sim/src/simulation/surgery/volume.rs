@@ -130,17 +130,12 @@ impl VolumeContact {
         model: Option<&HexModel>,
         diff: &mut f64,
     ) -> Option<VolumeContactStep> {
-        let groups = triangles_by_group(surface);
+        let groups = surface.triangles_by_group();
         if let Some(device) = &mut self.device {
             if self.stale {
                 let (embeddings, nodes) = surface.stable_embeddings();
                 device.set_embeddings(&embeddings, nodes);
-                let slots: Vec<([u32; 3], Option<u16>)> = surface
-                    .triangle_slots()
-                    .iter()
-                    .map(|t| (t.v, t.alive.then_some(t.group)))
-                    .collect();
-                device.set_triangles(&slots);
+                device.set_triangles(&surface.group_slots());
                 self.stale = false;
             }
             device.deform(&surface.stable_nodes(x, model));
@@ -229,19 +224,6 @@ impl VolumeContact {
         }
         boxes
     }
-}
-
-/// The live triangles of each surface group.
-fn triangles_by_group(surface: &OrganSurface) -> Vec<Vec<[u32; 3]>> {
-    let mut groups: Vec<Vec<[u32; 3]>> = Vec::new();
-    for t in surface.triangle_slots().iter().filter(|t| t.alive) {
-        let g = usize::from(t.group);
-        if groups.len() <= g {
-            groups.resize_with(g + 1, Vec::new);
-        }
-        groups[g].push(t.v);
-    }
-    groups
 }
 
 /// The mean length of the surface's edges at `rest` (m; 0 without triangles).

@@ -274,3 +274,28 @@ fn on_a_gpu_the_halves_are_pushed_apart_as_on_the_cpu() {
         "deepest {deep_gpu} against {deep_cpu}"
     );
 }
+
+#[test]
+fn the_gpu_key_never_fails_a_scene_and_auto_takes_no_software_adapter() {
+    let v = volume([4, 4, 4], |_, _, _| 1);
+    let build = |body: &str| {
+        let mut sim = Simulation::new(&config(0.001, body), &v, "contact.toml").unwrap();
+        let said = incise_scene::attach_gpu(&mut sim);
+        (sim, said)
+    };
+    // No volume contact: no device, whatever the key says.
+    let (sim, said) = build("gpu = \"on\"\n");
+    assert_eq!((sim.gpu(), said), (None, None));
+    // "auto": a hardware adapter or the CPU, never a software one, and never an error.
+    let (mut sim, said) = build("gpu = \"auto\"\n[volume_contact]\nself = true\n");
+    let said = said.expect("auto says what it chose");
+    println!("{said}");
+    match sim.gpu() {
+        Some(name) => assert!(!name.contains("(Cpu,"), "auto took a software adapter: {name}"),
+        None => assert!(said.contains("on the CPU"), "{said}"),
+    }
+    step(&mut sim, &StepInputs::default());
+    // "off" asks for nothing.
+    let (sim, said) = build("gpu = \"off\"\n[volume_contact]\nself = true\n");
+    assert_eq!((sim.gpu(), said), (None, None));
+}

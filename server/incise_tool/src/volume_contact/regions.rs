@@ -50,9 +50,9 @@ pub struct OverlapInterval {
 }
 
 /// The intersection of `a` and `b` as its connected regions (views of `resolution` pixels per
-/// side over the overlap of their bounding boxes, as [`super::intersection`]), ordered by their
+/// side over the overlap of their bounding boxes, as [`super::intersection()`]), ordered by their
 /// first interval (views x, y, z; pixels row by row). Their volumes and gradients sum to
-/// [`super::intersection`]'s.
+/// [`super::intersection()`]'s.
 #[must_use]
 pub fn overlaps(
     a: &TriangleSurface<'_>,

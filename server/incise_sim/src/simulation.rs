@@ -567,7 +567,7 @@ impl Simulation {
             extra.push(&mut s.field);
         }
         if let Some(v) = volume.as_mut() {
-            extra.push(&mut v.field);
+            extra.push(v);
         }
         let t = Instant::now();
         self.advance(inputs, extra, &mut counters);

@@ -16,7 +16,6 @@ mod volume;
 pub use surface::OrganSurface;
 
 pub(crate) use volume::VolumeContact;
-use volume::VolumeContactStep;
 
 use super::keyframe::ToolState;
 use super::{CutError, InputError, Simulation, StageCounters, StepInputs};
@@ -24,6 +23,7 @@ use crate::config::{Cutting, ShapeSpec, ToolSpec};
 use cut::DeformedGrid;
 use incise_fem::Executor;
 use incise_fem::forcefield::springs::{EmbeddedSpring, EmbeddedSprings};
+use incise_fem::forcefield::volume::VolumePenalty;
 use incise_grid::GridEdit;
 use incise_math::Vec3;
 use incise_surface::{SurfaceChanges, SurfaceOptions};
@@ -453,7 +453,7 @@ impl Simulation {
     pub(super) fn prepare_volume_contact(
         &mut self,
         counters: &mut StageCounters,
-    ) -> Option<VolumeContactStep> {
+    ) -> Option<VolumePenalty> {
         let mut surgery = self.surgery.take()?;
         let step = if surgery.volume.is_some() {
             if surgery.deformed_at != Some(self.index) {
@@ -468,8 +468,8 @@ impl Simulation {
             let step = volume.as_mut().and_then(|v| v.step(surface, positions, x, model, diff));
             counters.volume_contact_ns = elapsed(t);
             if let Some(s) = &step {
-                counters.overlap_regions = s.field.regions().len();
-                counters.overlap_volume = s.volume;
+                counters.overlap_regions = s.regions().len();
+                counters.overlap_volume = s.volume();
             }
             step
         } else {

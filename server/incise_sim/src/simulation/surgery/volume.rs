@@ -49,14 +49,6 @@ pub(crate) struct VolumeContact {
     check: bool,
 }
 
-/// What the contact found in a step.
-pub(crate) struct VolumeContactStep {
-    /// The penalty of every overlap, linearised at the step's start.
-    pub(crate) field: VolumePenalty,
-    /// The total overlap volume (m³).
-    pub(crate) volume: f64,
-}
-
 impl VolumeContact {
     /// The contact of `spec` on `surface`, whose vertices rest at `rest` (per slot) and whose
     /// tissues' surface groups are `group_of_label`.
@@ -129,7 +121,7 @@ impl VolumeContact {
         x: &[Vec3],
         model: Option<&HexModel>,
         diff: &mut f64,
-    ) -> Option<VolumeContactStep> {
+    ) -> Option<VolumePenalty> {
         let groups = surface.triangles_by_group();
         if let Some(device) = &mut self.device {
             if self.stale {
@@ -195,8 +187,7 @@ impl VolumeContact {
         if regions.is_empty() {
             return None;
         }
-        let field = VolumePenalty::new(regions, Executor::single_thread());
-        Some(VolumeContactStep { volume: field.volume(), field })
+        Some(VolumePenalty::new(regions, Executor::single_thread()))
     }
 
     /// For each surface group with cut vertices, the box around them where the self test looks.

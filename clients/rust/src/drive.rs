@@ -166,7 +166,8 @@ impl std::fmt::Display for Report {
 const TIMED_POSES: usize = 1024;
 
 /// Sends tool `tool`'s pose `pose_at(t)` (t in seconds from the start) at `rate_hz` for
-/// `duration`, waiting after each for forces until the next is due. Every pose whose force
+/// `duration`, waiting after each for forces until the next is due, and never faster than
+/// `rate_hz`: a period missed while this process was not running is skipped, not made up. Every pose whose force
 /// comes back is timed, however late (the first force answering it: the haptic loop repeats a
 /// pose's force until a newer pose arrives), so a loaded machine's round trips are measured,
 /// not cut off at the pose period. `on_force` sees every force received.
@@ -227,8 +228,11 @@ pub fn drive(
         }
         if let Some(left) = next.checked_duration_since(Instant::now()) {
             std::thread::sleep(left);
-        } else if next.elapsed() > 10 * period {
-            // Far behind (a stall): a new schedule from now, not a burst to catch up.
+        } else {
+            // Behind (this process was not scheduled in time): the missed periods are dropped
+            // and the schedule restarts from now. Catching up would send poses back to back,
+            // faster than the device's rate, and the haptic loop answers only the newest of
+            // those it finds waiting, so the rest would go unanswered.
             next = Instant::now();
         }
     }

@@ -20,7 +20,8 @@
 //! a volume and a gradient that shrinks it (what paper 1 relies on to keep simulating while it
 //! cuts).
 
-use super::ldi::{Fragment, Ldi, TriangleSurface, View};
+use super::ldi::{Fragment, TriangleSurface};
+use super::passes::{Passes, TriangleBoxes};
 use super::regions::OverlapInterval;
 use incise_math::Vec3;
 
@@ -65,22 +66,33 @@ pub fn intersection_in(
     resolution: usize,
 ) -> Intersection {
     let mut out = nothing(a, b);
-    each_overlap(a, b, region, resolution, |axis, _, area, start, end| {
-        out.volume_by_axis[axis] += area * (end.fragment.depth - start.fragment.depth);
-        for (bound, sign) in [(start, -1.0), (end, 1.0)] {
-            let (surface, gradient) = match bound.side {
-                Side::A => (a, &mut out.gradient_a),
-                Side::B => (b, &mut out.gradient_b),
-            };
-            add_crossing(surface, gradient, bound.fragment, axis, sign * area);
-        }
-    });
+    let (ba, bb) = (TriangleBoxes::of(a), TriangleBoxes::of(b));
+    Passes::default().each_overlap(
+        (a, &ba),
+        (b, &bb),
+        region,
+        resolution,
+        |axis, _, area, start, end| {
+            out.volume_by_axis[axis] += area * (end.end.depth - start.end.depth);
+            for (bound, sign) in [(start, -1.0), (end, 1.0)] {
+                let (surface, gradient) = match bound.side {
+                    Side::A => (a, &mut out.gradient_a),
+                    Side::B => (b, &mut out.gradient_b),
+                };
+                if let Some(crossing) = bound.end.crossing {
+                    add_crossing(surface, gradient, crossing, axis, sign * area);
+                }
+            }
+        },
+    );
     out.volume = out.volume_by_axis.iter().sum::<f64>() / 3.0;
     out
 }
 
 /// The intervals of every pixel's ray, in each of the three views of `resolution` pixels per
 /// side over `region`, that lie inside both `a` and `b`; by view, pixel row and column, depth.
+/// The region must hold the whole intersection (the surfaces' common box does): it sets the
+/// pixel grid and what is rasterised, and an interval is bounded by the crossings that make it.
 #[must_use]
 pub fn overlap_intervals(
     a: &TriangleSurface<'_>,
@@ -89,21 +101,8 @@ pub fn overlap_intervals(
     resolution: usize,
 ) -> Vec<OverlapInterval> {
     let mut out = Vec::new();
-    each_overlap(a, b, region, resolution, |axis, pixel, area, start, end| {
-        out.push(OverlapInterval {
-            axis,
-            pixel,
-            area,
-            depths: [start.fragment.depth, end.fragment.depth],
-            bounds: [start, end].map(|bd| {
-                let surface = match bd.side {
-                    Side::A => a,
-                    Side::B => b,
-                };
-                (bd.side, surface.triangles[bd.fragment.triangle as usize], bd.fragment.weights)
-            }),
-        });
-    });
+    let (ba, bb) = (TriangleBoxes::of(a), TriangleBoxes::of(b));
+    Passes::default().overlap_intervals((a, &ba), (b, &bb), region, resolution, &mut out);
     out
 }
 
@@ -119,78 +118,9 @@ pub fn self_overlap_intervals(
     resolution: usize,
 ) -> Vec<OverlapInterval> {
     let mut out = Vec::new();
-    each_self_overlap(surface, region, resolution, |axis, pixel, area, start, end| {
-        let (lo, hi) = (region.0[axis], region.1[axis]);
-        let depths = [start.depth.max(lo), end.depth.min(hi)];
-        if depths[1] <= depths[0] {
-            return;
-        }
-        let bound = |f: &Fragment, cut: bool| {
-            (
-                Side::A,
-                surface.triangles[f.triangle as usize],
-                if cut { [0.0; 3] } else { f.weights },
-            )
-        };
-        out.push(OverlapInterval {
-            axis,
-            pixel,
-            area,
-            depths,
-            bounds: [bound(start, start.depth < lo), bound(end, end.depth > hi)],
-        });
-    });
+    let boxes = TriangleBoxes::of(surface);
+    Passes::default().self_overlap_intervals((surface, &boxes), region, resolution, &mut out);
     out
-}
-
-/// Calls `f(axis, pixel, pixel area, start, end)` for every interval of every pixel's ray, in
-/// each of the three views over `region`, that lies inside both `a` and `b`.
-fn each_overlap<'s>(
-    a: &TriangleSurface<'s>,
-    b: &TriangleSurface<'s>,
-    region: (Vec3, Vec3),
-    resolution: usize,
-    mut f: impl FnMut(usize, [usize; 2], f64, Bound<'_>, Bound<'_>),
-) {
-    let (lo, hi) = region;
-    if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
-        return;
-    }
-    for axis in 0..3 {
-        let view = View::covering(axis, lo, hi, resolution);
-        let (la, lb) = (Ldi::rasterize(a, &view), Ldi::rasterize(b, &view));
-        let area = view.pixel_area();
-        for p in 0..la.pixel_count() {
-            let pixel = [p % view.size[0], p / view.size[0]];
-            for (start, end) in overlaps(&inside(la.pixel(p), 1), &inside(lb.pixel(p), 1)) {
-                f(axis, pixel, area, start, end);
-            }
-        }
-    }
-}
-
-/// Calls `f(axis, pixel, pixel area, start, end)` for every interval of every pixel's ray, in
-/// each of the three views over `region`, that lies inside two of `surface`'s layers at once.
-fn each_self_overlap(
-    surface: &TriangleSurface<'_>,
-    (lo, hi): (Vec3, Vec3),
-    resolution: usize,
-    mut f: impl FnMut(usize, [usize; 2], f64, &Fragment, &Fragment),
-) {
-    if (0..3).any(|k| lo[k].partial_cmp(&hi[k]) != Some(std::cmp::Ordering::Less)) {
-        return;
-    }
-    for axis in 0..3 {
-        let view = View::covering(axis, lo, hi, resolution);
-        let ldi = Ldi::rasterize(surface, &view);
-        let area = view.pixel_area();
-        for p in 0..ldi.pixel_count() {
-            let pixel = [p % view.size[0], p / view.size[0]];
-            for (start, end) in inside(ldi.pixel(p), 2) {
-                f(axis, pixel, area, start, end);
-            }
-        }
-    }
 }
 
 /// Where one surface overlaps itself (a cut's flap pressed into the tissue beside it).
@@ -213,12 +143,21 @@ pub fn self_intersection(surface: &TriangleSurface<'_>, resolution: usize) -> Se
         gradient: vec![[0.0; 3]; surface.positions.len()],
         ..Default::default()
     };
-    let Some(region) = surface.bounds() else { return out };
-    each_self_overlap(surface, region, resolution, |axis, _, area, start, end| {
-        out.volume_by_axis[axis] += area * (end.depth - start.depth);
-        add_crossing(surface, &mut out.gradient, start, axis, -area);
-        add_crossing(surface, &mut out.gradient, end, axis, area);
-    });
+    let boxes = TriangleBoxes::of(surface);
+    let Some(region) = boxes.bounds() else { return out };
+    Passes::default().each_self_overlap(
+        (surface, &boxes),
+        region,
+        resolution,
+        |axis, _, area, start, end| {
+            out.volume_by_axis[axis] += area * (end.depth - start.depth);
+            for (e, scale) in [(start, -area), (end, area)] {
+                if let Some(crossing) = e.crossing {
+                    add_crossing(surface, &mut out.gradient, crossing, axis, scale);
+                }
+            }
+        },
+    );
     out.volume = out.volume_by_axis.iter().sum::<f64>() / 3.0;
     out
 }
@@ -239,67 +178,6 @@ pub enum Side {
     A,
     /// The second surface.
     B,
-}
-
-/// A crossing that begins or ends an interval.
-#[derive(Clone, Copy, Debug)]
-struct Bound<'f> {
-    fragment: &'f Fragment,
-    side: Side,
-}
-
-/// The intervals of one ray inside at least `layers` of a surface (winding number `layers` or
-/// more), as the crossings that begin and end them.
-fn inside(fragments: &[Fragment], layers: i32) -> Vec<(&Fragment, &Fragment)> {
-    let mut out = Vec::new();
-    let mut winding = 0i32;
-    let mut start = None;
-    for f in fragments {
-        let before = winding;
-        winding += if f.entering { 1 } else { -1 };
-        if before < layers && winding >= layers {
-            start = Some(f);
-        } else if before >= layers
-            && winding < layers
-            && let Some(s) = start.take()
-        {
-            out.push((s, f));
-        }
-    }
-    out
-}
-
-/// The intersections of two sorted interval lists, each bounded by the crossing (and surface) that
-/// makes it begin or end; empty intersections are left out.
-fn overlaps<'f>(
-    a: &[(&'f Fragment, &'f Fragment)],
-    b: &[(&'f Fragment, &'f Fragment)],
-) -> Vec<(Bound<'f>, Bound<'f>)> {
-    let mut out = Vec::new();
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() && j < b.len() {
-        let (sa, ea) = a[i];
-        let (sb, eb) = b[j];
-        let start = if sa.depth >= sb.depth {
-            Bound { fragment: sa, side: Side::A }
-        } else {
-            Bound { fragment: sb, side: Side::B }
-        };
-        let end = if ea.depth <= eb.depth {
-            Bound { fragment: ea, side: Side::A }
-        } else {
-            Bound { fragment: eb, side: Side::B }
-        };
-        if end.fragment.depth > start.fragment.depth {
-            out.push((start, end));
-        }
-        if ea.depth <= eb.depth {
-            i += 1;
-        } else {
-            j += 1;
-        }
-    }
-    out
 }
 
 /// Adds `scale` times one crossing's depth derivative to component `axis` of its triangle's

@@ -10,7 +10,6 @@
 
 use crate::mesh_shape::sub;
 use incise_math::Vec3;
-use incise_math::mat3::cross;
 
 /// A closed, consistently oriented triangle surface (normals outwards): node positions and
 /// triangles of indices into them.
@@ -69,6 +68,20 @@ impl View {
         self.pixel[0] * self.pixel[1]
     }
 
+    /// The columns and rows of the pixels whose centres lie in the image-plane box `lo..hi`
+    /// (in the view's two plane axes).
+    #[must_use]
+    #[inline]
+    pub fn pixels_in(&self, lo: [f64; 2], hi: [f64; 2]) -> [std::ops::Range<usize>; 2] {
+        let range = |k: usize| {
+            let size = self.size[k] as i64;
+            let first = ceil((lo[k] - self.origin[k]) / self.pixel[k] - 0.5).clamp(0, size);
+            let last = (floor((hi[k] - self.origin[k]) / self.pixel[k] - 0.5) + 1).clamp(0, size);
+            first as usize..last as usize
+        };
+        [range(0), range(1)]
+    }
+
     fn centre(&self, i: usize, j: usize) -> [f64; 2] {
         [
             self.origin[0] + (i as f64 + 0.5) * self.pixel[0],
@@ -84,7 +97,7 @@ pub fn plane_axes(axis: usize) -> (usize, usize) {
 }
 
 /// One crossing of a pixel's ray with a triangle.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Fragment {
     /// Position along the view's axis.
     pub depth: f64,
@@ -99,39 +112,71 @@ pub struct Fragment {
 
 /// A layered depth image: every pixel's crossings, sorted by depth (at equal depth entering
 /// first, then by triangle).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Ldi {
     view: View,
     /// Pixel `p`'s fragments are `fragments[starts[p]..starts[p + 1]]`; pixels row by row.
     starts: Vec<u32>,
     fragments: Vec<Fragment>,
+    /// The crossings as found, with their pixels (kept only for its allocation).
+    hits: Vec<(u32, Fragment)>,
+}
+
+impl Default for View {
+    fn default() -> Self {
+        Self { axis: 0, origin: [0.0; 2], pixel: [1.0; 2], size: [0; 2] }
+    }
 }
 
 impl Ldi {
     /// Rasterises `surface` in `view`.
     #[must_use]
     pub fn rasterize(surface: &TriangleSurface<'_>, view: &View) -> Self {
-        let mut hits: Vec<(u32, Fragment)> = Vec::new();
-        for (t, tri) in surface.triangles.iter().enumerate() {
-            rasterize_triangle(surface, view, t as u32, *tri, &mut hits);
+        let mut ldi = Self::default();
+        ldi.rasterize_into(surface, view, 0..surface.triangles.len() as u32);
+        ldi
+    }
+
+    /// Makes this the image of the triangles `triangles` (indices into `surface.triangles`,
+    /// ascending) of `surface` in `view`, reusing its buffers: the same image as
+    /// [`Ldi::rasterize`] where the others cross none of the view's rays.
+    pub fn rasterize_into(
+        &mut self,
+        surface: &TriangleSurface<'_>,
+        view: &View,
+        triangles: impl IntoIterator<Item = u32>,
+    ) {
+        let Self { starts, fragments, hits, .. } = self;
+        hits.clear();
+        for t in triangles {
+            rasterize_triangle(surface, view, t, surface.triangles[t as usize], hits);
         }
-        // At equal depth entering first: a ray grazing the surface at a silhouette vertex or edge
-        // enters and leaves at once, an empty interval rather than an inside-out one.
-        hits.sort_by(|a, b| {
-            a.0.cmp(&b.0)
-                .then(a.1.depth.total_cmp(&b.1.depth))
-                .then(b.1.entering.cmp(&a.1.entering))
-                .then(a.1.triangle.cmp(&b.1.triangle))
-        });
+        // Bucketed by pixel (a counting sort, which keeps the triangles' ascending order within
+        // a pixel), then each pixel's few crossings sorted by depth in place.
         let pixels = view.size[0] * view.size[1];
-        let mut starts = vec![0u32; pixels + 1];
-        for &(p, _) in &hits {
+        starts.clear();
+        starts.resize(pixels + 1, 0);
+        for &(p, _) in hits.iter() {
             starts[p as usize + 1] += 1;
         }
         for p in 0..pixels {
             starts[p + 1] += starts[p];
         }
-        Self { view: *view, starts, fragments: hits.into_iter().map(|(_, f)| f).collect() }
+        fragments.clear();
+        fragments.resize(hits.len(), Fragment::default());
+        for &(p, f) in hits.iter() {
+            // `starts[p]` runs ahead as the pixel fills, and is set back below.
+            fragments[starts[p as usize] as usize] = f;
+            starts[p as usize] += 1;
+        }
+        for p in (0..pixels).rev() {
+            starts[p + 1] = starts[p];
+        }
+        starts[0] = 0;
+        for p in 0..pixels {
+            sort_by_depth(&mut fragments[starts[p] as usize..starts[p + 1] as usize]);
+        }
+        self.view = *view;
     }
 
     /// The view rasterised.
@@ -153,6 +198,25 @@ impl Ldi {
     }
 }
 
+/// Sorts one pixel's crossings, given in ascending triangle order, by depth; at equal depth
+/// entering first (a ray grazing the surface at a silhouette vertex or edge enters and leaves at
+/// once, an empty interval rather than an inside-out one), then by triangle. An insertion sort,
+/// stable, so the triangles' order decides the last tie: a ray crosses a handful of layers.
+fn sort_by_depth(fragments: &mut [Fragment]) {
+    let before = |a: &Fragment, b: &Fragment| {
+        a.depth.total_cmp(&b.depth).then(b.entering.cmp(&a.entering)) == std::cmp::Ordering::Less
+    };
+    for i in 1..fragments.len() {
+        let f = fragments[i];
+        let mut j = i;
+        while j > 0 && before(&f, &fragments[j - 1]) {
+            fragments[j] = fragments[j - 1];
+            j -= 1;
+        }
+        fragments[j] = f;
+    }
+}
+
 /// The crossings of one triangle with the view's rays, as (pixel, fragment).
 fn rasterize_triangle(
     surface: &TriangleSurface<'_>,
@@ -163,47 +227,45 @@ fn rasterize_triangle(
 ) {
     let (u, v) = plane_axes(view.axis);
     let p = tri.map(|i| surface.positions[i as usize]);
-    let normal = cross(&sub(p[1], p[0]), &sub(p[2], p[0]));
-    let nz = normal[view.axis];
+    let q = p.map(|x| [x[u], x[v]]);
+    // The pixels whose centres the projection's box holds, found first so that a triangle
+    // beside the view costs no more than this.
+    let lo = [0, 1].map(|k| q[0][k].min(q[1][k]).min(q[2][k]));
+    let hi = [0, 1].map(|k| q[0][k].max(q[1][k]).max(q[2][k]));
+    let [columns, rows] = view.pixels_in(lo, hi);
+    if columns.is_empty() || rows.is_empty() {
+        return;
+    }
+    // The normal's component along the rays (as `cross` computes it).
+    let (e1, e2) = (sub(p[1], p[0]), sub(p[2], p[0]));
+    let nz = e1[u] * e2[v] - e1[v] * e2[u];
     if nz == 0.0 || !nz.is_finite() {
         // Edge-on: its neighbours' crossings close the surface along this ray.
         return;
     }
-    let q = p.map(|x| [x[u], x[v]]);
     // Counter-clockwise in the image plane, with each vertex's barycentric slot remembered.
     let order: [usize; 3] = if nz > 0.0 { [0, 1, 2] } else { [0, 2, 1] };
     let (a, b, c) =
         ((tri[order[0]], q[order[0]]), (tri[order[1]], q[order[1]]), (tri[order[2]], q[order[2]]));
-    let lo = [q[0][0].min(q[1][0]).min(q[2][0]), q[0][1].min(q[1][1]).min(q[2][1])];
-    let hi = [q[0][0].max(q[1][0]).max(q[2][0]), q[0][1].max(q[1][1]).max(q[2][1])];
-    let first = |k: usize| {
-        (((lo[k] - view.origin[k]) / view.pixel[k] - 0.5).ceil().max(0.0) as usize)
-            .min(view.size[k])
-    };
-    let last = |k: usize| {
-        let x = ((hi[k] - view.origin[k]) / view.pixel[k] - 0.5).floor();
-        if x < 0.0 { 0 } else { (x as usize + 1).min(view.size[k]) }
-    };
+    // Edge functions opposite each vertex of the counter-clockwise order.
+    let edges = [Edge::new(b, c), Edge::new(c, a), Edge::new(a, b)];
     let depth_of =
         |w: [f64; 3]| w[0] * p[0][view.axis] + w[1] * p[1][view.axis] + w[2] * p[2][view.axis];
-    for j in first(1)..last(1) {
-        for i in first(0)..last(0) {
+    for j in rows {
+        for i in columns.clone() {
             let centre = view.centre(i, j);
-            // Edge functions opposite each vertex of the counter-clockwise order.
-            let ea = edge(b, c, centre);
-            let eb = edge(c, a, centre);
-            let ec = edge(a, b, centre);
-            if !(covers(ea, b.1, c.1) && covers(eb, c.1, a.1) && covers(ec, a.1, b.1)) {
+            let e = edges.map(|edge| edge.at(centre));
+            if !(edges[0].covers(e[0]) && edges[1].covers(e[1]) && edges[2].covers(e[2])) {
                 continue;
             }
-            let sum = ea + eb + ec;
+            let sum = e[0] + e[1] + e[2];
             if sum <= 0.0 {
                 continue;
             }
             let mut weights = [0.0; 3];
-            weights[order[0]] = ea / sum;
-            weights[order[1]] = eb / sum;
-            weights[order[2]] = ec / sum;
+            weights[order[0]] = e[0] / sum;
+            weights[order[1]] = e[1] / sum;
+            weights[order[2]] = e[2] / sum;
             let fragment =
                 Fragment { depth: depth_of(weights), triangle: t, weights, entering: nz < 0.0 };
             out.push(((i + view.size[0] * j) as u32, fragment));
@@ -211,22 +273,59 @@ fn rasterize_triangle(
     }
 }
 
-/// The edge function of the directed edge `from → to` at `x` (positive on its left), computed
-/// from the endpoint with the smaller vertex index whichever way the edge runs, so that two
-/// triangles sharing the edge get values of exactly opposite sign.
-fn edge(from: (u32, [f64; 2]), to: (u32, [f64; 2]), x: [f64; 2]) -> f64 {
-    let (p, q, sign) = if from.0 <= to.0 { (from.1, to.1, 1.0) } else { (to.1, from.1, -1.0) };
-    sign * ((q[0] - p[0]) * (x[1] - p[1]) - (q[1] - p[1]) * (x[0] - p[0]))
+/// `⌈x⌉` as an integer (saturating; 0 for NaN). Truncation and a compare: `f64::ceil` is a
+/// library call on the baseline x86-64 target, and this runs for every triangle of every view.
+fn ceil(x: f64) -> i64 {
+    let t = x as i64;
+    t + i64::from((t as f64) < x)
 }
 
-/// Whether a pixel centre with edge function `e` for the edge `from → to` of a
-/// counter-clockwise triangle lies on its inner side: strictly, or on the edge when the edge is a
-/// "left or top" one. Of two triangles sharing an edge (running opposite ways), exactly one owns
-/// a centre on it.
-fn covers(e: f64, from: [f64; 2], to: [f64; 2]) -> bool {
-    if e != 0.0 {
-        return e > 0.0;
+/// `⌊x⌋` as an integer (saturating; 0 for NaN), as [`ceil`].
+fn floor(x: f64) -> i64 {
+    let t = x as i64;
+    t - i64::from((t as f64) > x)
+}
+
+/// The edge function of a triangle's directed edge `from → to` (positive on its left),
+/// computed from the endpoint with the smaller vertex index whichever way the edge runs, so that
+/// two triangles sharing the edge get values of exactly opposite sign; and which of the two
+/// owns a pixel centre on the edge.
+#[derive(Clone, Copy)]
+struct Edge {
+    /// The endpoint with the smaller vertex index.
+    origin: [f64; 2],
+    /// The other endpoint minus `origin`.
+    along: [f64; 2],
+    /// +1 where the edge runs from `origin`, −1 where it runs towards it.
+    sign: f64,
+    /// Whether a centre on the edge is inside: a "left or top" edge of a counter-clockwise
+    /// triangle owns it, so that of two triangles sharing the edge (running opposite ways)
+    /// exactly one does.
+    owns_zero: bool,
+}
+
+impl Edge {
+    fn new(from: (u32, [f64; 2]), to: (u32, [f64; 2])) -> Self {
+        let (p, q, sign) = if from.0 <= to.0 { (from.1, to.1, 1.0) } else { (to.1, from.1, -1.0) };
+        let (du, dv) = (to.1[0] - from.1[0], to.1[1] - from.1[1]);
+        Self {
+            origin: p,
+            along: [q[0] - p[0], q[1] - p[1]],
+            sign,
+            owns_zero: dv < 0.0 || (dv == 0.0 && du > 0.0),
+        }
     }
-    let (du, dv) = (to[0] - from[0], to[1] - from[1]);
-    dv < 0.0 || (dv == 0.0 && du > 0.0)
+
+    /// The edge function at `x`.
+    #[inline]
+    fn at(&self, x: [f64; 2]) -> f64 {
+        let (p, d) = (self.origin, self.along);
+        self.sign * (d[0] * (x[1] - p[1]) - d[1] * (x[0] - p[0]))
+    }
+
+    /// Whether a centre with edge function `e` lies on the triangle's inner side of the edge.
+    #[inline]
+    fn covers(&self, e: f64) -> bool {
+        if e == 0.0 { self.owns_zero } else { e > 0.0 }
+    }
 }

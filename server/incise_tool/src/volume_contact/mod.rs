@@ -5,6 +5,8 @@
 //! - [`ldi`]: layered depth images of a closed triangle surface along one axis;
 //! - [`mod@intersection`]: the intersection volume of two surfaces, or of one surface with itself,
 //!   and its gradient;
+//! - [`passes`]: the views' rasterisation and ray intervals behind both, with what a frame's
+//!   passes share;
 //! - [`regions`]: the same split into connected overlaps, each with its own volume and gradient
 //!   (what the contact's penalty pushes apart);
 //! - [`device`]: the trait a device (a GPU) implements to run the per-frame passes instead.
@@ -12,6 +14,7 @@
 pub mod device;
 pub mod intersection;
 pub mod ldi;
+pub mod passes;
 pub mod regions;
 
 pub use device::ContactDevice;
@@ -20,6 +23,7 @@ pub use intersection::{
     self_intersection, self_overlap_intervals,
 };
 pub use ldi::{Fragment, Ldi, TriangleSurface, View};
+pub use passes::{Passes, TriangleBoxes};
 pub use regions::{
     Overlap, OverlapInterval, overlaps, regions_of, self_overlaps, self_overlaps_in,
 };

@@ -111,7 +111,8 @@ pub fn regions_of(
                 Side::A => &mut o.gradient_a,
                 Side::B => &mut o.gradient_b,
             };
-            for (&v, &w) in tri.iter().zip(weights) {
+            // A cut end (zero weights) moves with no vertex.
+            for (&v, &w) in tri.iter().zip(weights).filter(|&(_, &w)| w != 0.0) {
                 let mut d = [0.0; 3];
                 d[iv.axis] = sign * iv.area * w;
                 g.push((v, d));

@@ -28,7 +28,7 @@ use incise_fem::{Executor, HexModel};
 use incise_math::Vec3;
 use incise_surface::SurfaceChanges;
 use incise_tool::volume_contact::{
-    ContactDevice, Overlap, TriangleSurface, overlap_intervals, regions_of, self_overlap_intervals,
+    ContactDevice, Overlap, OverlapInterval, Passes, TriangleBoxes, TriangleSurface, regions_of,
 };
 
 /// A scene's volume contact between steps.
@@ -47,6 +47,12 @@ pub(crate) struct VolumeContact {
     /// Whether each device pass is run on the CPU too, for [`super::super::StageCounters`]'s
     /// `gpu_cpu_volume_diff`.
     check: bool,
+    /// Each surface group's live triangles, as of the last re-mesh (`None`: to be found).
+    groups: Option<Vec<Vec<[u32; 3]>>>,
+    /// Each group's triangle boxes at this step's positions (found for the groups a pass uses).
+    boxes: Vec<TriangleBoxes>,
+    /// What the CPU passes reuse from step to step.
+    passes: Passes,
 }
 
 impl VolumeContact {
@@ -76,6 +82,9 @@ impl VolumeContact {
             device: None,
             stale: true,
             check: false,
+            groups: None,
+            boxes: Vec::new(),
+            passes: Passes::default(),
         })
     }
 
@@ -98,6 +107,7 @@ impl VolumeContact {
     /// Follows a re-mesh: vertices it created are cut walls, vertices it freed are gone.
     pub(crate) fn surface_changed(&mut self, changes: &SurfaceChanges) {
         self.stale = true;
+        self.groups = None;
         self.cut_vertices.retain(|v| changes.vertices_removed.binary_search(v).is_err());
         self.cut_vertices.extend_from_slice(&changes.vertices_added);
         self.cut_vertices.sort_unstable();
@@ -122,21 +132,38 @@ impl VolumeContact {
         model: Option<&HexModel>,
         diff: &mut f64,
     ) -> Option<VolumePenalty> {
-        let groups = surface.triangles_by_group();
-        if let Some(device) = &mut self.device {
-            if self.stale {
+        let cut_regions =
+            if self.spec.self_contact { self.cut_regions(surface, positions) } else { Vec::new() };
+        let Self { spec, pairs, device, stale, check, groups, boxes, passes: cpu, .. } = self;
+        let groups = groups.get_or_insert_with(|| surface.triangles_by_group());
+        if let Some(device) = device {
+            if *stale {
                 let (embeddings, nodes) = surface.stable_embeddings();
                 device.set_embeddings(&embeddings, nodes);
                 device.set_triangles(&surface.group_slots());
-                self.stale = false;
+                *stale = false;
             }
             device.deform(&surface.stable_nodes(x, model));
         }
         let group = |g: u16| groups.get(usize::from(g)).map_or(&[][..], Vec::as_slice);
         let side = |g: u16| TriangleSurface { positions, triangles: group(g) };
+        // The boxes of the groups some pass looks at, once for all the step's passes.
+        let mut used: Vec<u16> = pairs.iter().flatten().copied().collect();
+        used.extend(cut_regions.iter().map(|&(g, _)| g));
+        boxes.resize_with(groups.len(), TriangleBoxes::default);
+        used.sort_unstable();
+        used.dedup();
+        for &g in &used {
+            if let Some(b) = boxes.get_mut(usize::from(g)) {
+                b.update(&side(g));
+            }
+        }
+        let empty = TriangleBoxes::default();
+        let boxes = |g: u16| boxes.get(usize::from(g)).unwrap_or(&empty);
         let mut passes: Vec<(u16, Option<u16>, (Vec3, Vec3))> = Vec::new();
-        for &[a, b] in &self.pairs {
-            let (Some((alo, ahi)), Some((blo, bhi))) = (side(a).bounds(), side(b).bounds()) else {
+        for &[a, b] in pairs.iter() {
+            let (Some((alo, ahi)), Some((blo, bhi))) = (boxes(a).bounds(), boxes(b).bounds())
+            else {
                 continue;
             };
             let lo: Vec3 = std::array::from_fn(|k| alo[k].max(blo[k]));
@@ -145,36 +172,46 @@ impl VolumeContact {
                 passes.push((a, Some(b), (lo, hi)));
             }
         }
-        if self.spec.self_contact {
-            for (g, region) in self.cut_regions(surface, positions) {
-                passes.push((g, None, region));
-            }
+        for (g, region) in cut_regions {
+            passes.push((g, None, region));
         }
-        let resolution = self.spec.resolution;
+        let resolution = spec.resolution;
         let mut found: Vec<Overlap> = Vec::new();
+        let mut on_cpu: Vec<OverlapInterval> = Vec::new();
         for (a, b, region) in passes {
-            let on_cpu = || match b {
-                Some(b) => overlap_intervals(&side(a), &side(b), region, resolution),
-                None => self_overlap_intervals(&side(a), region, resolution),
+            let mut cpu_pass = |out: &mut Vec<OverlapInterval>| {
+                out.clear();
+                let sa = side(a);
+                match b {
+                    Some(b) => cpu.overlap_intervals(
+                        (&sa, boxes(a)),
+                        (&side(b), boxes(b)),
+                        region,
+                        resolution,
+                        out,
+                    ),
+                    None => cpu.self_overlap_intervals((&sa, boxes(a)), region, resolution, out),
+                }
             };
             let from_device =
-                self.device.as_mut().and_then(|d| d.overlap_intervals(a, b, region, resolution));
-            let intervals = match from_device {
-                Some(intervals) => {
-                    if self.check {
-                        let volume = |iv: &[incise_tool::volume_contact::OverlapInterval]| {
-                            iv.iter().map(|i| i.area * (i.depths[1] - i.depths[0])).sum::<f64>()
-                        };
-                        let (dev, cpu) = (volume(&intervals), volume(&on_cpu()));
-                        if cpu > 0.0 || dev > 0.0 {
-                            *diff = diff.max((dev - cpu).abs() / cpu.max(dev));
-                        }
+                device.as_mut().and_then(|d| d.overlap_intervals(a, b, region, resolution));
+            let intervals: &[OverlapInterval] = if let Some(intervals) = &from_device {
+                if *check {
+                    let volume = |iv: &[OverlapInterval]| {
+                        iv.iter().map(|i| i.area * (i.depths[1] - i.depths[0])).sum::<f64>()
+                    };
+                    cpu_pass(&mut on_cpu);
+                    let (dev, cpu) = (volume(intervals), volume(&on_cpu));
+                    if cpu > 0.0 || dev > 0.0 {
+                        *diff = diff.max((dev - cpu).abs() / cpu.max(dev));
                     }
-                    intervals
                 }
-                None => on_cpu(),
+                intervals
+            } else {
+                cpu_pass(&mut on_cpu);
+                &on_cpu
             };
-            found.extend(regions_of(&intervals, region, resolution));
+            found.extend(regions_of(intervals, region, resolution));
         }
         let regions: Vec<OverlapRegion> = found
             .iter()

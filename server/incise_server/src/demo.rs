@@ -99,7 +99,8 @@ fn grasper(s: &Stage, f: f64) -> ([f64; 3], [f64; 4], f64) {
 
 type Script = fn(&Stage, f64) -> ([f64; 3], [f64; 4], f64);
 
-/// Runs the demo for `duration` with `options`; prints progress to stderr and returns the
+/// Runs the demo for `duration` with `options` (and on, the tools idle, until at least a
+/// keyframe interval of simulated time has passed); prints progress to stderr and returns the
 /// server's final status and each client's report.
 ///
 /// # Panics
@@ -160,6 +161,16 @@ pub fn run(
         eprintln!();
         Ok(handles.into_iter().map(|h| h.join().expect("a demo client panicked")).collect())
     })?;
+    // A machine too loaded to step the physics in real time has simulated less than the run
+    // lasted: the server runs on (the tools idle) until a keyframe interval is simulated and
+    // a little more, so that the recording always holds a keyframe past the first to replay
+    // from. A minute at most.
+    let keyframe = ((crate::physics::KEYFRAME_INTERVAL_S * 1.1) / running.dt).ceil() as u64;
+    let until = Instant::now() + Duration::from_mins(1);
+    while running.physics.frames.load(Ordering::Relaxed) < keyframe && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+        take(&mut watched);
+    }
     // The last frames are still on their way.
     std::thread::sleep(Duration::from_millis(100));
     take(&mut watched);

@@ -68,7 +68,9 @@ struct Cli {
     /// a summary of frames, rates, round-trip latencies, forces and cuts.
     #[arg(long)]
     demo: bool,
-    /// How long the demo runs (s).
+    /// How long the demo's scripted tools run (s). The server then runs on, the tools idle,
+    /// until it has simulated at least one keyframe interval (1 s), so that a recording holds a
+    /// keyframe to replay from even where the machine steps the physics below real time.
     #[arg(long, default_value_t = 6.0, requires = "demo")]
     duration: f64,
     /// Record the session into DIR: `<scene>-<unix seconds>.mcap`, every physics frame (the tool

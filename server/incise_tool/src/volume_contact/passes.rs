@@ -105,7 +105,8 @@ pub(crate) struct Bound<'f> {
 pub struct Passes {
     images: [Ldi; 2],
     candidates: [Vec<u32>; 2],
-    /// Per pixel of the first surface's image, the depth past which nothing of it lies.
+    /// Per pixel of the first surface's image, the depth past which nothing of it can bound an
+    /// interval.
     reach: Vec<f64>,
 }
 
@@ -156,8 +157,9 @@ impl Passes {
     }
 
     /// Calls `f(axis, pixel, pixel area, start, end)` for every interval of every pixel's ray,
-    /// in each of the three views of `resolution` pixels per side over `region`, that lies
-    /// inside both `a` and `b` and inside `region`; by view, pixel row and column, depth.
+    /// in each of the three views of `resolution` pixels per side over `region` (which must hold
+    /// the whole intersection), that lies inside both `a` and `b`; by view, pixel row and
+    /// column, depth.
     pub(crate) fn each_overlap(
         &mut self,
         (a, ba): Boxed<'_, '_>,

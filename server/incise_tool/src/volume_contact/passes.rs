@@ -104,10 +104,12 @@ pub(crate) struct Bound<'f> {
 #[derive(Debug, Default)]
 pub struct Passes {
     images: [Ldi; 2],
+    /// Per surface and view axis, the triangles over the region's pixels in that view.
+    in_plane: [[Vec<u32>; 3]; 2],
     candidates: [Vec<u32>; 2],
-    /// Per pixel of the first surface's image, the depth past which nothing of it can bound an
-    /// interval.
-    reach: Vec<f64>,
+    spare: Vec<u32>,
+    /// Per pixel of the first surface's image, the depths between which it is inside.
+    reach: Vec<[f64; 2]>,
 }
 
 impl Passes {
@@ -172,29 +174,27 @@ impl Passes {
         if !is_box(region) {
             return;
         }
+        in_plane_into(ba, region, &mut self.in_plane[0]);
+        in_plane_into(bb, region, &mut self.in_plane[1]);
         for axis in 0..3 {
             let view = View::covering(axis, lo, hi, resolution);
             let depths = (lo[axis], hi[axis]);
-            let Self { images, candidates, reach } = self;
-            candidates_into(ba, region, axis, &mut candidates[0]);
-            candidates_into(bb, region, axis, &mut candidates[1]);
-            // The surface with fewer candidates first; the other skips what lies beyond it.
+            let Self { images, in_plane, candidates, spare, reach } = self;
+            let counted = [
+                candidates_into(ba, &in_plane[0][axis], region, axis, &mut candidates[0], spare),
+                candidates_into(bb, &in_plane[1][axis], region, axis, &mut candidates[1], spare),
+            ];
+            // The surface with fewer candidates first; the other skips what lies outside it.
             let (first, second) =
                 if candidates[1].len() < candidates[0].len() { (1, 0) } else { (0, 1) };
             let surfaces = [a, b];
             let boxes = [ba, bb];
+            let mut directions = counted;
             images[first].rasterize_into(surfaces[first], &view, candidates[first].iter().copied());
-            reach_into(&images[first], reach);
-            let slack = slack(depths);
-            let second_boxes = boxes[second];
-            let reached = |t: &u32| {
-                let [lo_t, hi_t] = second_boxes.boxes[*t as usize];
-                let (u, v) = plane_axes(axis);
-                let [columns, rows] = view.pixels_in([lo_t[u], lo_t[v]], [hi_t[u], hi_t[v]]);
-                rows.flat_map(|j| columns.clone().map(move |i| i + view.size[0] * j))
-                    .any(|p| lo_t[axis] <= reach[p] + slack)
-            };
-            candidates[second].retain(reached);
+            reach_into(&images[first], directions[first], reach);
+            candidates[second].clone_from(&in_plane[second][axis]);
+            directions[second] =
+                reached(boxes[second], &view, depths, reach, &mut candidates[second], spare);
             images[second].rasterize_into(
                 surfaces[second],
                 &view,
@@ -205,23 +205,26 @@ impl Passes {
             let (mut ia, mut ib) = (Vec::new(), Vec::new());
             for p in 0..view.size[0] * view.size[1] {
                 ia.clear();
-                inside(la.pixel(p), 1, depths, false, &mut ia);
+                inside(la.pixel(p), directions[0], 1, depths, false, &mut ia);
                 if ia.is_empty() {
                     continue;
                 }
                 ib.clear();
-                inside(lb.pixel(p), 1, depths, false, &mut ib);
+                inside(lb.pixel(p), directions[1], 1, depths, false, &mut ib);
                 let pixel = [p % view.size[0], p / view.size[0]];
-                overlaps(&ia, &ib, |start, mut end| {
-                    // Both still inside past every crossing listed: only a region that does not
-                    // hold the whole intersection sees this, and it ends at its face.
+                overlaps(&ia, &ib, |mut start, mut end| {
+                    // Both still inside before or past every crossing listed: only a region
+                    // that does not hold the whole intersection sees this, and it ends at its
+                    // face.
+                    if start.end.crossing.is_none() && start.end.depth < depths.0 {
+                        start.end.depth = depths.0;
+                    }
                     if end.end.crossing.is_none() && end.end.depth > depths.1 {
                         end.end.depth = depths.1;
-                        if end.end.depth <= start.end.depth {
-                            return;
-                        }
                     }
-                    f(axis, pixel, area, start, end);
+                    if end.end.depth > start.end.depth {
+                        f(axis, pixel, area, start, end);
+                    }
                 });
             }
         }
@@ -241,16 +244,19 @@ impl Passes {
         if !is_box(region) {
             return;
         }
+        in_plane_into(boxes, region, &mut self.in_plane[0]);
         for axis in 0..3 {
             let mut intervals = Vec::new();
             let view = View::covering(axis, lo, hi, resolution);
-            candidates_into(boxes, region, axis, &mut self.candidates[0]);
+            let Self { in_plane, candidates, spare, .. } = self;
+            let direction =
+                candidates_into(boxes, &in_plane[0][axis], region, axis, &mut candidates[0], spare);
             let ldi = &mut self.images[0];
             ldi.rasterize_into(surface, &view, self.candidates[0].iter().copied());
             let area = view.pixel_area();
             for p in 0..ldi.pixel_count() {
                 intervals.clear();
-                inside(ldi.pixel(p), 2, (lo[axis], hi[axis]), true, &mut intervals);
+                inside(ldi.pixel(p), direction, 2, (lo[axis], hi[axis]), true, &mut intervals);
                 let pixel = [p % view.size[0], p / view.size[0]];
                 for &(start, end) in &intervals {
                     f(axis, pixel, area, start, end);
@@ -265,42 +271,135 @@ fn is_box((lo, hi): (Vec3, Vec3)) -> bool {
     (0..3).all(|k| lo[k].partial_cmp(&hi[k]) == Some(std::cmp::Ordering::Less))
 }
 
-/// The triangles (ascending) that can decide what the view along `axis` sees inside `region`:
-/// those whose box meets the region's in the image plane and does not lie wholly beyond it.
-fn candidates_into(boxes: &TriangleBoxes, (lo, hi): (Vec3, Vec3), axis: usize, out: &mut Vec<u32>) {
-    let (u, v) = plane_axes(axis);
-    let beyond = hi[axis] + slack((lo[axis], hi[axis]));
-    out.clear();
-    out.extend(
-        boxes
-            .boxes
-            .iter()
-            .enumerate()
-            .filter(|(_, [bl, bh])| {
-                bl[u] <= hi[u]
-                    && bh[u] >= lo[u]
-                    && bl[v] <= hi[v]
-                    && bh[v] >= lo[v]
-                    && bl[axis] <= beyond
-            })
-            .map(|(t, _)| t as u32),
-    );
+/// Which of a surface's crossings along a view's rays a pass keeps, and so from which end of a
+/// ray the winding number is counted. A closed surface's winding number is zero before every
+/// crossing and past every one, so it can be counted from either end; the crossings at the other
+/// end may then be left out wherever they cannot bound an interval.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Direction {
+    /// Counted from the near end: crossings beyond what is looked at may be missing.
+    Forward,
+    /// Counted from the far end: crossings before what is looked at may be missing.
+    Backward,
 }
 
-/// Per pixel of `ldi`, the depth past which its surface has no crossing that can bound an
-/// interval: its last crossing, or infinity where the ray is still inside after it (a crossing
-/// beyond the region was skipped); minus infinity where it has none.
-fn reach_into(ldi: &Ldi, out: &mut Vec<f64>) {
+/// Per view axis, the triangles (ascending) whose box meets `region`'s in that view's image
+/// plane: the only ones that can cross the view's rays.
+fn in_plane_into(boxes: &TriangleBoxes, (lo, hi): (Vec3, Vec3), out: &mut [Vec<u32>; 3]) {
+    for list in out.iter_mut() {
+        list.clear();
+    }
+    for (t, [bl, bh]) in boxes.boxes.iter().enumerate() {
+        let meets: [bool; 3] = std::array::from_fn(|k| bl[k] <= hi[k] && bh[k] >= lo[k]);
+        for (axis, list) in out.iter_mut().enumerate() {
+            let (u, v) = plane_axes(axis);
+            if meets[u] && meets[v] {
+                list.push(t as u32);
+            }
+        }
+    }
+}
+
+/// Of the triangles `in_plane` (of `boxes`, over the region's pixels in the view along `axis`),
+/// those (in `out`) that can decide what the view sees inside `region`: those not wholly beyond
+/// it (counted forward) or not wholly before it (counted backward), whichever keeps fewer; and
+/// the direction chosen. `spare` is scratch.
+fn candidates_into(
+    boxes: &TriangleBoxes,
+    in_plane: &[u32],
+    (lo, hi): (Vec3, Vec3),
+    axis: usize,
+    out: &mut Vec<u32>,
+    spare: &mut Vec<u32>,
+) -> Direction {
+    let slack = slack((lo[axis], hi[axis]));
+    let (beyond, before) = (hi[axis] + slack, lo[axis] - slack);
+    out.clear();
+    spare.clear();
+    for &t in in_plane {
+        let [bl, bh] = &boxes.boxes[t as usize];
+        if bl[axis] <= beyond {
+            out.push(t);
+        }
+        if bh[axis] >= before {
+            spare.push(t);
+        }
+    }
+    if spare.len() < out.len() {
+        std::mem::swap(out, spare);
+        Direction::Backward
+    } else {
+        Direction::Forward
+    }
+}
+
+/// Per pixel of `ldi` (counted in `direction`), the depths between which its surface is inside:
+/// from its first interval's start to its last's end (open ends at infinity), or an empty span
+/// where it has none. No overlap with it lies outside its span.
+fn reach_into(ldi: &Ldi, direction: Direction, out: &mut Vec<[f64; 2]>) {
+    let mut intervals = Vec::new();
     out.clear();
     out.extend((0..ldi.pixel_count()).map(|p| {
-        let fragments = ldi.pixel(p);
-        let winding: i32 = fragments.iter().map(|f| if f.entering { 1 } else { -1 }).sum();
-        match fragments.last() {
-            None => f64::NEG_INFINITY,
-            Some(_) if winding > 0 => f64::INFINITY,
-            Some(f) => f.depth,
+        intervals.clear();
+        inside(
+            ldi.pixel(p),
+            direction,
+            1,
+            (f64::NEG_INFINITY, f64::INFINITY),
+            false,
+            &mut intervals,
+        );
+        match (intervals.first(), intervals.last()) {
+            (Some((start, _)), Some((_, end))) => [start.depth, end.depth],
+            _ => [f64::INFINITY, f64::NEG_INFINITY],
         }
     }));
+}
+
+/// Keeps of `candidates` (the second surface's triangles over the region's pixels, of `boxes`)
+/// those needed to find its overlaps with the first surface, whose inside spans per pixel are
+/// `reach`: counted forward, those not beyond the span (nor the region) at some pixel they
+/// cover; counted backward, those not before it; whichever direction keeps fewer is returned. `depths`
+/// is the region's extent along the rays; `spare` is scratch.
+fn reached(
+    boxes: &TriangleBoxes,
+    view: &View,
+    depths: (f64, f64),
+    reach: &[[f64; 2]],
+    candidates: &mut Vec<u32>,
+    spare: &mut Vec<u32>,
+) -> Direction {
+    let slack = slack(depths);
+    let (axis, (u, v)) = (view.axis, plane_axes(view.axis));
+    let (mut forward, mut backward) = (Vec::new(), Vec::new());
+    std::mem::swap(&mut forward, candidates);
+    std::mem::swap(&mut backward, spare);
+    backward.clear();
+    forward.retain(|&t| {
+        let [lo_t, hi_t] = boxes.boxes[t as usize];
+        let [columns, rows] = view.pixels_in([lo_t[u], lo_t[v]], [hi_t[u], hi_t[v]]);
+        let (mut ahead, mut behind) = (false, false);
+        for j in rows {
+            for i in columns.clone() {
+                let [start, end] = reach[i + view.size[0] * j];
+                ahead |= lo_t[axis] <= end.min(depths.1) + slack && start <= end;
+                behind |= hi_t[axis] >= start.max(depths.0) - slack && start <= end;
+            }
+        }
+        if behind {
+            backward.push(t);
+        }
+        ahead
+    });
+    let direction = if backward.len() < forward.len() {
+        std::mem::swap(&mut forward, &mut backward);
+        Direction::Backward
+    } else {
+        Direction::Forward
+    };
+    *candidates = forward;
+    *spare = backward;
+    direction
 }
 
 /// How far past a depth a triangle must start to be skipped as lying beyond it: a crossing's
@@ -311,22 +410,25 @@ fn slack((near, far): (f64, f64)) -> f64 {
 }
 
 /// Appends the intervals of one ray inside at least `layers` of a surface (winding number
-/// `layers` or more). Crossings beyond `far` may be missing: an interval still open after the
-/// last crossing listed runs to `far` and is cut there. With `clip`, every interval is cut to
-/// `near..far`; without, the crossings bound it wherever they lie, and an open one is cut
-/// beyond every depth (at infinity), which the other surface's interval always ends before.
+/// `layers` or more), its crossings counted in `direction`. Counted forward, crossings beyond
+/// `far` may be missing: an interval still open after the last crossing listed runs on past it.
+/// Counted backward, crossings before `near` may be missing: an interval open before the first
+/// crossing listed starts before it. With `clip`, every interval is cut to `near..far`;
+/// without, the crossings bound it wherever they lie, and an open end lies at infinity, which the
+/// other surface's interval always ends before.
 fn inside<'f>(
     fragments: &'f [Fragment],
+    direction: Direction,
     layers: i32,
     (near, far): (f64, f64),
     clip: bool,
     out: &mut Vec<(End<'f>, End<'f>)>,
 ) {
-    let mut push = |start: &'f Fragment, end: Option<&'f Fragment>| {
-        let start = if clip && start.depth < near {
-            End { depth: near, crossing: None }
-        } else {
-            End { depth: start.depth, crossing: Some(start) }
+    let mut push = |start: Option<&'f Fragment>, end: Option<&'f Fragment>| {
+        let start = match start {
+            Some(s) if !clip || s.depth >= near => End { depth: s.depth, crossing: Some(s) },
+            _ if clip => End { depth: near, crossing: None },
+            _ => End { depth: f64::NEG_INFINITY, crossing: None },
         };
         let end = match end {
             Some(e) if !clip || e.depth <= far => End { depth: e.depth, crossing: Some(e) },
@@ -337,13 +439,19 @@ fn inside<'f>(
             out.push((start, end));
         }
     };
-    let mut winding = 0i32;
-    let mut start = None;
+    let sign = |f: &Fragment| if f.entering { 1 } else { -1 };
+    // The winding number before the first crossing listed: zero, or, counted from the far end
+    // where the surface's winding is zero again, minus the sum of all those listed.
+    let mut winding = match direction {
+        Direction::Forward => 0,
+        Direction::Backward => -fragments.iter().map(sign).sum::<i32>(),
+    };
+    let mut start: Option<Option<&'f Fragment>> = (winding >= layers).then_some(None);
     for f in fragments {
         let before = winding;
-        winding += if f.entering { 1 } else { -1 };
+        winding += sign(f);
         if before < layers && winding >= layers {
-            start = Some(f);
+            start = Some(Some(f));
         } else if before >= layers
             && winding < layers
             && let Some(s) = start.take()

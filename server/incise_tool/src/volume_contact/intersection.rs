@@ -21,7 +21,7 @@
 //! cuts).
 
 use super::ldi::{Fragment, TriangleSurface};
-use super::passes::{Passes, TriangleBoxes};
+use super::passes::Passes;
 use super::regions::OverlapInterval;
 use incise_math::Vec3;
 
@@ -66,25 +66,18 @@ pub fn intersection_in(
     resolution: usize,
 ) -> Intersection {
     let mut out = nothing(a, b);
-    let (ba, bb) = (TriangleBoxes::of(a), TriangleBoxes::of(b));
-    Passes::default().each_overlap(
-        (a, &ba),
-        (b, &bb),
-        region,
-        resolution,
-        |axis, _, area, start, end| {
-            out.volume_by_axis[axis] += area * (end.end.depth - start.end.depth);
-            for (bound, sign) in [(start, -1.0), (end, 1.0)] {
-                let (surface, gradient) = match bound.side {
-                    Side::A => (a, &mut out.gradient_a),
-                    Side::B => (b, &mut out.gradient_b),
-                };
-                if let Some(crossing) = bound.end.crossing {
-                    add_crossing(surface, gradient, crossing, axis, sign * area);
-                }
+    Passes::default().each_overlap(a, b, region, resolution, |axis, _, area, start, end| {
+        out.volume_by_axis[axis] += area * (end.end.depth - start.end.depth);
+        for (bound, sign) in [(start, -1.0), (end, 1.0)] {
+            let (surface, gradient) = match bound.side {
+                Side::A => (a, &mut out.gradient_a),
+                Side::B => (b, &mut out.gradient_b),
+            };
+            if let Some(crossing) = bound.end.crossing {
+                add_crossing(surface, gradient, crossing, axis, sign * area);
             }
-        },
-    );
+        }
+    });
     out.volume = out.volume_by_axis.iter().sum::<f64>() / 3.0;
     out
 }
@@ -101,8 +94,7 @@ pub fn overlap_intervals(
     resolution: usize,
 ) -> Vec<OverlapInterval> {
     let mut out = Vec::new();
-    let (ba, bb) = (TriangleBoxes::of(a), TriangleBoxes::of(b));
-    Passes::default().overlap_intervals((a, &ba), (b, &bb), region, resolution, &mut out);
+    Passes::default().overlap_intervals(a, b, region, resolution, &mut out);
     out
 }
 
@@ -118,8 +110,7 @@ pub fn self_overlap_intervals(
     resolution: usize,
 ) -> Vec<OverlapInterval> {
     let mut out = Vec::new();
-    let boxes = TriangleBoxes::of(surface);
-    Passes::default().self_overlap_intervals((surface, &boxes), region, resolution, &mut out);
+    Passes::default().self_overlap_intervals(surface, region, resolution, &mut out);
     out
 }
 
@@ -143,10 +134,9 @@ pub fn self_intersection(surface: &TriangleSurface<'_>, resolution: usize) -> Se
         gradient: vec![[0.0; 3]; surface.positions.len()],
         ..Default::default()
     };
-    let boxes = TriangleBoxes::of(surface);
-    let Some(region) = boxes.bounds() else { return out };
+    let Some(region) = surface.bounds() else { return out };
     Passes::default().each_self_overlap(
-        (surface, &boxes),
+        surface,
         region,
         resolution,
         |axis, _, area, start, end| {

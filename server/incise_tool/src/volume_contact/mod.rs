@@ -23,7 +23,7 @@ pub use intersection::{
     self_intersection, self_overlap_intervals,
 };
 pub use ldi::{Fragment, Ldi, TriangleSurface, View};
-pub use passes::{Passes, TriangleBoxes};
+pub use passes::Passes;
 pub use regions::{
     Overlap, OverlapInterval, overlaps, regions_of, self_overlaps, self_overlaps_in,
 };

@@ -2,73 +2,89 @@
 //! over a region, the layered depth images of the surfaces involved and the intervals of each
 //! pixel's ray that lie inside both (or inside two layers of one).
 //!
-//! A frame runs several passes over the same surfaces, so what can be shared is: each
-//! triangle's box is found once per frame ([`TriangleBoxes`]), and the images and lists are
-//! kept between passes ([`Passes`]), so that once warm a frame allocates little.
+//! A frame runs several passes over the same surfaces, so the images and lists are kept between
+//! passes ([`Passes`]): once warm, a frame allocates little.
 //!
 //! **What a view rasterises.** A triangle can matter to a view only if its box meets the
-//! region's in the image plane (otherwise it crosses none of the view's rays) and does not lie
-//! wholly beyond the region along the rays: the winding number at a depth counts the crossings
-//! before it, never those after, and nothing beyond the region is looked at (a pair's region
-//! holds their whole intersection; a surface against itself is cut to its region). For two
-//! surfaces, the second rasterised also skips every triangle that lies, at each pixel it covers,
-//! beyond the first's last crossing there: nothing of the first lies there to overlap. An
-//! interval left open by the crossings skipped ends where the other surface's ends (a pair) or
-//! at the region's far face (a surface against itself), as it would anyway. None of this
-//! changes an interval (a test checks this against the definition, every crossing of every ray).
+//! region's in the image plane (otherwise it crosses none of the view's rays). Each vertex is
+//! coded once per pass by where it lies against the region's faces, and the bits a triangle's
+//! three vertices share say on which side of a face its box lies, with no box computed.
+//!
+//! Along the rays, a closed surface's winding number is zero before its first crossing and
+//! past its last, so it can be counted from either end. Counted from the near end, the
+//! crossings beyond the region are not needed (nothing beyond it is looked at: a pair's region
+//! holds their whole intersection, and a surface against itself is cut to its region); counted
+//! from the far end, those before it are not. Each view counts each surface from whichever end
+//! leaves fewer triangles to rasterise. An interval left open by the crossings skipped ends
+//! where the other surface's ends (a pair) or at the region's face (a surface against itself),
+//! as it would anyway.
+//!
+//! For two surfaces, the one with fewer triangles to rasterise goes first; the second then
+//! needs, at each pixel, only what the first's inside span there can meet: counted from the near
+//! end, the triangles not beyond that span at some pixel they cover; from the far end, those not
+//! before it; again whichever keeps fewer. None of this changes an interval (a test checks it
+//! against the definition, every crossing of every ray).
 
 use super::intersection::Side;
 use super::ldi::{Fragment, Ldi, TriangleSurface, View, plane_axes};
 use super::regions::OverlapInterval;
 use incise_math::Vec3;
 
-/// Every triangle's axis-aligned box, and the surface's.
-#[derive(Clone, Debug, Default)]
-pub struct TriangleBoxes {
-    /// Per triangle, its lower and upper corner.
-    boxes: Vec<[Vec3; 2]>,
-    bounds: Option<(Vec3, Vec3)>,
-}
+/// Where a vertex lies against a region, per axis `k` in bits `4k..4k + 4`: below its lower
+/// face, above its upper face, and before or beyond those faces by more than [`slack`]. The
+/// bits that all three of a triangle's vertices share say on which side of a face its box lies
+/// (a non-finite coordinate sets every bit of its axis, so that, as with `f64::min` and
+/// `f64::max`, it does not widen the box).
+mod code {
+    pub(super) const BELOW: u16 = 1;
+    pub(super) const ABOVE: u16 = 2;
+    pub(super) const BEFORE: u16 = 4;
+    pub(super) const BEYOND: u16 = 8;
 
-impl TriangleBoxes {
-    /// The boxes of `surface`'s triangles.
-    #[must_use]
-    pub fn of(surface: &TriangleSurface<'_>) -> Self {
-        let mut boxes = Self::default();
-        boxes.update(surface);
-        boxes
-    }
-
-    /// Makes these the boxes of `surface`'s triangles, reusing the allocation.
-    pub fn update(&mut self, surface: &TriangleSurface<'_>) {
-        self.boxes.clear();
-        self.boxes.extend(surface.triangles.iter().map(|tri| {
-            let p = tri.map(|i| surface.positions[i as usize]);
-            [
-                std::array::from_fn(|k| p[0][k].min(p[1][k]).min(p[2][k])),
-                std::array::from_fn(|k| p[0][k].max(p[1][k]).max(p[2][k])),
-            ]
-        }));
-        self.bounds = self.boxes.split_first().map(|(first, rest)| {
-            rest.iter().fold((first[0], first[1]), |(lo, hi), b| {
-                (
-                    std::array::from_fn(|k| lo[k].min(b[0][k])),
-                    std::array::from_fn(|k| hi[k].max(b[1][k])),
-                )
-            })
-        });
-    }
-
-    /// The box holding every triangle (`None` without triangles), as
-    /// [`TriangleSurface::bounds`].
-    #[must_use]
-    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
-        self.bounds
+    /// `bits` for axis `k`.
+    pub(super) const fn on(bits: u16, k: usize) -> u16 {
+        bits << (4 * k)
     }
 }
 
-/// A surface with its triangles' boxes (which must be the surface's current ones).
-pub type Boxed<'s, 'b> = (&'s TriangleSurface<'s>, &'b TriangleBoxes);
+/// Each vertex's [`code`] against `region`, into `out`.
+fn codes_into(positions: &[Vec3], (lo, hi): (Vec3, Vec3), out: &mut Vec<u16>) {
+    let slacks: [f64; 3] = std::array::from_fn(|k| slack((lo[k], hi[k])));
+    out.clear();
+    out.extend(positions.iter().map(|p| {
+        let mut c = 0;
+        for k in 0..3 {
+            let x = p[k];
+            let bits = if x.is_nan() {
+                code::BELOW | code::ABOVE | code::BEFORE | code::BEYOND
+            } else {
+                let bit = |set: bool, bit: u16| if set { bit } else { 0 };
+                bit(x < lo[k], code::BELOW)
+                    | bit(x > hi[k], code::ABOVE)
+                    | bit(x < lo[k] - slacks[k], code::BEFORE)
+                    | bit(x > hi[k] + slacks[k], code::BEYOND)
+            };
+            c |= code::on(bits, k);
+        }
+        c
+    }));
+}
+
+/// The [`code`] bits a triangle's three vertices share.
+#[inline]
+fn shared(codes: &[u16], tri: [u32; 3]) -> u16 {
+    codes[tri[0] as usize] & codes[tri[1] as usize] & codes[tri[2] as usize]
+}
+
+/// A triangle's axis-aligned box.
+#[inline]
+fn triangle_box(surface: &TriangleSurface<'_>, tri: [u32; 3]) -> [Vec3; 2] {
+    let p = tri.map(|i| surface.positions[i as usize]);
+    [
+        std::array::from_fn(|k| p[0][k].min(p[1][k]).min(p[2][k])),
+        std::array::from_fn(|k| p[0][k].max(p[1][k]).max(p[2][k])),
+    ]
+}
 
 /// One end of an interval along a ray: the crossing that makes it, or a face of the region
 /// looked at, which cuts it and which no vertex moves.
@@ -104,6 +120,8 @@ pub(crate) struct Bound<'f> {
 #[derive(Debug, Default)]
 pub struct Passes {
     images: [Ldi; 2],
+    /// Per surface, its vertices' [`code`]s against the region.
+    codes: [Vec<u16>; 2],
     /// Per surface and view axis, the triangles over the region's pixels in that view.
     in_plane: [[Vec<u32>; 3]; 2],
     candidates: [Vec<u32>; 2],
@@ -116,8 +134,8 @@ impl Passes {
     /// Appends [`super::overlap_intervals`]'s intervals of `a` and `b` to `out`.
     pub fn overlap_intervals(
         &mut self,
-        a: Boxed<'_, '_>,
-        b: Boxed<'_, '_>,
+        a: &TriangleSurface<'_>,
+        b: &TriangleSurface<'_>,
         region: (Vec3, Vec3),
         resolution: usize,
         out: &mut Vec<OverlapInterval>,
@@ -130,8 +148,8 @@ impl Passes {
                 depths: [start.end.depth, end.end.depth],
                 bounds: [start, end].map(|bd| {
                     let surface = match bd.side {
-                        Side::A => a.0,
-                        Side::B => b.0,
+                        Side::A => a,
+                        Side::B => b,
                     };
                     bd.end.bound(bd.side, surface)
                 }),
@@ -142,7 +160,7 @@ impl Passes {
     /// Appends [`super::self_overlap_intervals`]'s intervals of `surface` to `out`.
     pub fn self_overlap_intervals(
         &mut self,
-        surface: Boxed<'_, '_>,
+        surface: &TriangleSurface<'_>,
         region: (Vec3, Vec3),
         resolution: usize,
         out: &mut Vec<OverlapInterval>,
@@ -153,7 +171,7 @@ impl Passes {
                 pixel,
                 area,
                 depths: [start.depth, end.depth],
-                bounds: [start, end].map(|e| e.bound(Side::A, surface.0)),
+                bounds: [start, end].map(|e| e.bound(Side::A, surface)),
             });
         });
     }
@@ -164,8 +182,8 @@ impl Passes {
     /// column, depth.
     pub(crate) fn each_overlap(
         &mut self,
-        (a, ba): Boxed<'_, '_>,
-        (b, bb): Boxed<'_, '_>,
+        a: &TriangleSurface<'_>,
+        b: &TriangleSurface<'_>,
         region: (Vec3, Vec3),
         resolution: usize,
         mut f: impl FnMut(usize, [usize; 2], f64, Bound<'_>, Bound<'_>),
@@ -174,27 +192,34 @@ impl Passes {
         if !is_box(region) {
             return;
         }
-        in_plane_into(ba, region, &mut self.in_plane[0]);
-        in_plane_into(bb, region, &mut self.in_plane[1]);
+        let surfaces = [a, b];
+        codes_into(a.positions, region, &mut self.codes[0]);
+        if std::ptr::eq(a.positions, b.positions) {
+            let [ca, cb] = &mut self.codes;
+            cb.clone_from(ca);
+        } else {
+            codes_into(b.positions, region, &mut self.codes[1]);
+        }
+        for s in 0..2 {
+            in_plane_into(surfaces[s], &self.codes[s], &mut self.in_plane[s]);
+        }
         for axis in 0..3 {
             let view = View::covering(axis, lo, hi, resolution);
             let depths = (lo[axis], hi[axis]);
-            let Self { images, in_plane, candidates, spare, reach } = self;
-            let counted = [
-                candidates_into(ba, &in_plane[0][axis], region, axis, &mut candidates[0], spare),
-                candidates_into(bb, &in_plane[1][axis], region, axis, &mut candidates[1], spare),
-            ];
+            let Self { images, codes, in_plane, candidates, spare, reach } = self;
+            let counted: [Direction; 2] = std::array::from_fn(|s| {
+                let c = &mut candidates[s];
+                candidates_into(surfaces[s], &codes[s], &in_plane[s][axis], axis, c, spare)
+            });
             // The surface with fewer candidates first; the other skips what lies outside it.
             let (first, second) =
                 if candidates[1].len() < candidates[0].len() { (1, 0) } else { (0, 1) };
-            let surfaces = [a, b];
-            let boxes = [ba, bb];
             let mut directions = counted;
             images[first].rasterize_into(surfaces[first], &view, candidates[first].iter().copied());
-            reach_into(&images[first], directions[first], reach);
+            reach_into(&images[first], directions[first], depths, reach);
             candidates[second].clone_from(&in_plane[second][axis]);
             directions[second] =
-                reached(boxes[second], &view, depths, reach, &mut candidates[second], spare);
+                reached(surfaces[second], &view, reach, &mut candidates[second], spare);
             images[second].rasterize_into(
                 surfaces[second],
                 &view,
@@ -235,7 +260,7 @@ impl Passes {
     /// once and inside `region`; by view, pixel row and column, depth.
     pub(crate) fn each_self_overlap(
         &mut self,
-        (surface, boxes): Boxed<'_, '_>,
+        surface: &TriangleSurface<'_>,
         region: (Vec3, Vec3),
         resolution: usize,
         mut f: impl FnMut(usize, [usize; 2], f64, End<'_>, End<'_>),
@@ -244,13 +269,14 @@ impl Passes {
         if !is_box(region) {
             return;
         }
-        in_plane_into(boxes, region, &mut self.in_plane[0]);
+        codes_into(surface.positions, region, &mut self.codes[0]);
+        in_plane_into(surface, &self.codes[0], &mut self.in_plane[0]);
         for axis in 0..3 {
             let mut intervals = Vec::new();
             let view = View::covering(axis, lo, hi, resolution);
-            let Self { in_plane, candidates, spare, .. } = self;
-            let direction =
-                candidates_into(boxes, &in_plane[0][axis], region, axis, &mut candidates[0], spare);
+            let Self { codes, in_plane, candidates, spare, .. } = self;
+            let (c, plane) = (&mut candidates[0], &in_plane[0][axis]);
+            let direction = candidates_into(surface, &codes[0], plane, axis, c, spare);
             let ldi = &mut self.images[0];
             ldi.rasterize_into(surface, &view, self.candidates[0].iter().copied());
             let area = view.pixel_area();
@@ -283,45 +309,48 @@ pub(crate) enum Direction {
     Backward,
 }
 
-/// Per view axis, the triangles (ascending) whose box meets `region`'s in that view's image
-/// plane: the only ones that can cross the view's rays.
-fn in_plane_into(boxes: &TriangleBoxes, (lo, hi): (Vec3, Vec3), out: &mut [Vec<u32>; 3]) {
+/// Per view axis, the triangles (ascending) of `surface` whose box meets the region's (that of
+/// the vertices' `codes`) in that view's image plane: the only ones that can cross its rays.
+fn in_plane_into(surface: &TriangleSurface<'_>, codes: &[u16], out: &mut [Vec<u32>; 3]) {
     for list in out.iter_mut() {
         list.clear();
     }
-    for (t, [bl, bh]) in boxes.boxes.iter().enumerate() {
-        let meets: [bool; 3] = std::array::from_fn(|k| bl[k] <= hi[k] && bh[k] >= lo[k]);
-        for (axis, list) in out.iter_mut().enumerate() {
-            let (u, v) = plane_axes(axis);
-            if meets[u] && meets[v] {
+    let outside = |k: usize| code::on(code::BELOW | code::ABOVE, k);
+    let off_plane: [u16; 3] = std::array::from_fn(|axis| {
+        let (u, v) = plane_axes(axis);
+        outside(u) | outside(v)
+    });
+    for (t, &tri) in surface.triangles.iter().enumerate() {
+        let all = shared(codes, tri);
+        for (list, off) in out.iter_mut().zip(off_plane) {
+            if all & off == 0 {
                 list.push(t as u32);
             }
         }
     }
 }
 
-/// Of the triangles `in_plane` (of `boxes`, over the region's pixels in the view along `axis`),
-/// those (in `out`) that can decide what the view sees inside `region`: those not wholly beyond
-/// it (counted forward) or not wholly before it (counted backward), whichever keeps fewer; and
-/// the direction chosen. `spare` is scratch.
+/// Of the triangles `in_plane` (of `surface`, over the region's pixels in the view along
+/// `axis`), those (in `out`) that can decide what the view sees inside the region of the
+/// vertices' `codes`: those not wholly beyond it (counted forward) or not wholly before it
+/// (counted backward), whichever keeps fewer; and the direction chosen. `spare` is scratch.
 fn candidates_into(
-    boxes: &TriangleBoxes,
+    surface: &TriangleSurface<'_>,
+    codes: &[u16],
     in_plane: &[u32],
-    (lo, hi): (Vec3, Vec3),
     axis: usize,
     out: &mut Vec<u32>,
     spare: &mut Vec<u32>,
 ) -> Direction {
-    let slack = slack((lo[axis], hi[axis]));
-    let (beyond, before) = (hi[axis] + slack, lo[axis] - slack);
+    let (beyond, before) = (code::on(code::BEYOND, axis), code::on(code::BEFORE, axis));
     out.clear();
     spare.clear();
     for &t in in_plane {
-        let [bl, bh] = &boxes.boxes[t as usize];
-        if bl[axis] <= beyond {
+        let all = shared(codes, surface.triangles[t as usize]);
+        if all & beyond == 0 {
             out.push(t);
         }
-        if bh[axis] >= before {
+        if all & before == 0 {
             spare.push(t);
         }
     }
@@ -333,57 +362,56 @@ fn candidates_into(
     }
 }
 
-/// Per pixel of `ldi` (counted in `direction`), the depths between which its surface is inside:
-/// from its first interval's start to its last's end (open ends at infinity), or an empty span
-/// where it has none. No overlap with it lies outside its span.
-fn reach_into(ldi: &Ldi, direction: Direction, out: &mut Vec<[f64; 2]>) {
+/// Per pixel of `ldi` (counted in `direction`), the depths between which a crossing of another
+/// surface can bound an overlap with it: its inside span (from its first interval's start to its
+/// last's end, open ends at infinity) cut to `depths` (the region's extent along the rays) and
+/// widened by its [`slack`]; an empty span (`+∞..−∞`) where it has none.
+fn reach_into(ldi: &Ldi, direction: Direction, depths: (f64, f64), out: &mut Vec<[f64; 2]>) {
+    let slack = slack(depths);
     let mut intervals = Vec::new();
     out.clear();
     out.extend((0..ldi.pixel_count()).map(|p| {
         intervals.clear();
-        inside(
-            ldi.pixel(p),
-            direction,
-            1,
-            (f64::NEG_INFINITY, f64::INFINITY),
-            false,
-            &mut intervals,
-        );
+        let everywhere = (f64::NEG_INFINITY, f64::INFINITY);
+        inside(ldi.pixel(p), direction, 1, everywhere, false, &mut intervals);
         match (intervals.first(), intervals.last()) {
-            (Some((start, _)), Some((_, end))) => [start.depth, end.depth],
+            (Some((start, _)), Some((_, end))) => {
+                [start.depth.max(depths.0) - slack, end.depth.min(depths.1) + slack]
+            }
             _ => [f64::INFINITY, f64::NEG_INFINITY],
         }
     }));
 }
 
-/// Keeps of `candidates` (the second surface's triangles over the region's pixels, of `boxes`)
-/// those needed to find its overlaps with the first surface, whose inside spans per pixel are
-/// `reach`: counted forward, those not beyond the span (nor the region) at some pixel they
-/// cover; counted backward, those not before it; whichever direction keeps fewer is returned. `depths`
-/// is the region's extent along the rays; `spare` is scratch.
+/// Keeps of `candidates` (the second surface's triangles over the region's pixels) those
+/// needed to find its overlaps with the first surface, whose spans per pixel are `reach`
+/// ([`reach_into`]): counted forward, those not beyond the span at some pixel they cover;
+/// counted backward, those not before it; whichever direction keeps fewer is returned. `spare`
+/// is scratch.
 fn reached(
-    boxes: &TriangleBoxes,
+    surface: &TriangleSurface<'_>,
     view: &View,
-    depths: (f64, f64),
     reach: &[[f64; 2]],
     candidates: &mut Vec<u32>,
     spare: &mut Vec<u32>,
 ) -> Direction {
-    let slack = slack(depths);
     let (axis, (u, v)) = (view.axis, plane_axes(view.axis));
     let (mut forward, mut backward) = (Vec::new(), Vec::new());
     std::mem::swap(&mut forward, candidates);
     std::mem::swap(&mut backward, spare);
     backward.clear();
     forward.retain(|&t| {
-        let [lo_t, hi_t] = boxes.boxes[t as usize];
+        let [lo_t, hi_t] = triangle_box(surface, surface.triangles[t as usize]);
         let [columns, rows] = view.pixels_in([lo_t[u], lo_t[v]], [hi_t[u], hi_t[v]]);
         let (mut ahead, mut behind) = (false, false);
-        for j in rows {
-            for i in columns.clone() {
-                let [start, end] = reach[i + view.size[0] * j];
-                ahead |= lo_t[axis] <= end.min(depths.1) + slack && start <= end;
-                behind |= hi_t[axis] >= start.max(depths.0) - slack && start <= end;
+        'pixels: for j in rows {
+            let row = &reach[view.size[0] * j..][columns.clone()];
+            for &[start, end] in row {
+                ahead |= lo_t[axis] <= end;
+                behind |= hi_t[axis] >= start;
+                if ahead && behind {
+                    break 'pixels;
+                }
             }
         }
         if behind {

@@ -28,7 +28,7 @@ use incise_fem::{Executor, HexModel};
 use incise_math::Vec3;
 use incise_surface::SurfaceChanges;
 use incise_tool::volume_contact::{
-    ContactDevice, Overlap, OverlapInterval, Passes, TriangleBoxes, TriangleSurface, regions_of,
+    ContactDevice, Overlap, OverlapInterval, Passes, TriangleSurface, regions_of,
 };
 
 /// A scene's volume contact between steps.
@@ -47,10 +47,9 @@ pub(crate) struct VolumeContact {
     /// Whether each device pass is run on the CPU too, for [`super::super::StageCounters`]'s
     /// `gpu_cpu_volume_diff`.
     check: bool,
-    /// Each surface group's live triangles, as of the last re-mesh (`None`: to be found).
-    groups: Option<Vec<Vec<[u32; 3]>>>,
-    /// Each group's triangle boxes at this step's positions (found for the groups a pass uses).
-    boxes: Vec<TriangleBoxes>,
+    /// Each surface group's live triangles and the vertices they use, as of the last re-mesh
+    /// (`None`: to be found).
+    groups: Option<Vec<Group>>,
     /// What the CPU passes reuse from step to step.
     passes: Passes,
 }
@@ -83,7 +82,6 @@ impl VolumeContact {
             stale: true,
             check: false,
             groups: None,
-            boxes: Vec::new(),
             passes: Passes::default(),
         })
     }
@@ -134,8 +132,10 @@ impl VolumeContact {
     ) -> Option<VolumePenalty> {
         let cut_regions =
             if self.spec.self_contact { self.cut_regions(surface, positions) } else { Vec::new() };
-        let Self { spec, pairs, device, stale, check, groups, boxes, passes: cpu, .. } = self;
-        let groups = groups.get_or_insert_with(|| surface.triangles_by_group());
+        let Self { spec, pairs, device, stale, check, groups, passes: cpu, .. } = self;
+        let groups = groups.get_or_insert_with(|| {
+            surface.triangles_by_group().into_iter().map(Group::new).collect()
+        });
         if let Some(device) = device {
             if *stale {
                 let (embeddings, nodes) = surface.stable_embeddings();
@@ -145,25 +145,12 @@ impl VolumeContact {
             }
             device.deform(&surface.stable_nodes(x, model));
         }
-        let group = |g: u16| groups.get(usize::from(g)).map_or(&[][..], Vec::as_slice);
+        let group = |g: u16| groups.get(usize::from(g)).map_or(&[][..], |g| &g.triangles);
         let side = |g: u16| TriangleSurface { positions, triangles: group(g) };
-        // The boxes of the groups some pass looks at, once for all the step's passes.
-        let mut used: Vec<u16> = pairs.iter().flatten().copied().collect();
-        used.extend(cut_regions.iter().map(|&(g, _)| g));
-        boxes.resize_with(groups.len(), TriangleBoxes::default);
-        used.sort_unstable();
-        used.dedup();
-        for &g in &used {
-            if let Some(b) = boxes.get_mut(usize::from(g)) {
-                b.update(&side(g));
-            }
-        }
-        let empty = TriangleBoxes::default();
-        let boxes = |g: u16| boxes.get(usize::from(g)).unwrap_or(&empty);
+        let bounds = |g: u16| groups.get(usize::from(g)).and_then(|g| g.bounds(positions));
         let mut passes: Vec<(u16, Option<u16>, (Vec3, Vec3))> = Vec::new();
         for &[a, b] in pairs.iter() {
-            let (Some((alo, ahi)), Some((blo, bhi))) = (boxes(a).bounds(), boxes(b).bounds())
-            else {
+            let (Some((alo, ahi)), Some((blo, bhi))) = (bounds(a), bounds(b)) else {
                 continue;
             };
             let lo: Vec3 = std::array::from_fn(|k| alo[k].max(blo[k]));
@@ -183,14 +170,8 @@ impl VolumeContact {
                 out.clear();
                 let sa = side(a);
                 match b {
-                    Some(b) => cpu.overlap_intervals(
-                        (&sa, boxes(a)),
-                        (&side(b), boxes(b)),
-                        region,
-                        resolution,
-                        out,
-                    ),
-                    None => cpu.self_overlap_intervals((&sa, boxes(a)), region, resolution, out),
+                    Some(b) => cpu.overlap_intervals(&sa, &side(b), region, resolution, out),
+                    None => cpu.self_overlap_intervals(&sa, region, resolution, out),
                 }
             };
             let from_device =
@@ -251,6 +232,31 @@ impl VolumeContact {
             }
         }
         boxes
+    }
+}
+
+/// One surface group's live triangles and the vertices they use.
+struct Group {
+    triangles: Vec<[u32; 3]>,
+    /// Ascending.
+    vertices: Vec<u32>,
+}
+
+impl Group {
+    fn new(triangles: Vec<[u32; 3]>) -> Self {
+        let mut vertices: Vec<u32> = triangles.iter().flatten().copied().collect();
+        vertices.sort_unstable();
+        vertices.dedup();
+        Self { triangles, vertices }
+    }
+
+    /// The box holding the group at vertex positions `positions` (per slot); `None` when empty.
+    fn bounds(&self, positions: &[Vec3]) -> Option<(Vec3, Vec3)> {
+        let mut points = self.vertices.iter().map(|&v| positions[v as usize]);
+        let first = points.next()?;
+        Some(points.fold((first, first), |(lo, hi), p| {
+            (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
+        }))
     }
 }
 

@@ -56,9 +56,12 @@ fn project(p: vec3<f32>) -> vec2<f32> {
     return vec2<f32>(p[(view.axis + 1u) % 3u], p[(view.axis + 2u) % 3u]);
 }
 
-// The edge function of from → to at x (positive on its left), computed from the endpoint with
-// the smaller vertex index whichever way the edge runs: two triangles sharing the edge get values
-// of exactly opposite sign.
+// The edge function of from → to at x (positive on its left), as (p − x) × (q − x) with p and q
+// the ends in vertex-index order whichever way the edge runs: two triangles sharing the edge get
+// values of exactly opposite sign, and so do two edges whose ends project onto the same points
+// (a voxel surface's vertical walls seen from above). The CPU twin decides these signs exactly;
+// here they are rounded (f32), so a ray within rounding of an edge-on wall may still see a
+// crossing twice or not at all.
 fn edge(fi: u32, fp: vec2<f32>, ti: u32, tp: vec2<f32>, x: vec2<f32>) -> f32 {
     var p = fp;
     var q = tp;
@@ -68,7 +71,7 @@ fn edge(fi: u32, fp: vec2<f32>, ti: u32, tp: vec2<f32>, x: vec2<f32>) -> f32 {
         q = fp;
         s = -1.0;
     }
-    return s * ((q.x - p.x) * (x.y - p.y) - (q.y - p.y) * (x.x - p.x));
+    return s * ((p.x - x.x) * (q.y - x.y) - (p.y - x.y) * (q.x - x.x));
 }
 
 // Whether a centre with edge function e lies on the inner side of the edge p → q of a

@@ -6,9 +6,12 @@
 //! A pixel's ray runs along `+axis` through the pixel's centre. A triangle covers a pixel when the
 //! centre lies inside its projection, with a tie rule on edges and vertices (below) so that a
 //! closed surface is crossed exactly once where its triangles meet: no double crossings and no
-//! gaps, on any grid, even with vertices exactly on pixel centres.
+//! gaps, on any grid, even with vertices exactly on pixel centres. Which side of an edge a
+//! centre lies on is decided by an exact sign (Shewchuk's adaptive orientation predicate), not
+//! a rounded one: a voxel surface's walls, seen along an axis, are edge-on or within rounding of
+//! it, and the pixel centres of a view over a box from the same lattice fall on their lines, so
+//! rounded signs there counted some rays' crossings twice or not at all.
 
-use crate::mesh_shape::sub;
 use incise_math::Vec3;
 
 /// A closed, consistently oriented triangle surface (normals outwards): node positions and
@@ -69,14 +72,18 @@ impl View {
     }
 
     /// The columns and rows of the pixels whose centres lie in the image-plane box `lo..hi`
-    /// (in the view's two plane axes).
+    /// (in the view's two plane axes), and of those within a ten-millionth of a pixel of it: a
+    /// centre on the box's edge (a vertex on a pixel centre) must not be lost to the rounding
+    /// of the division.
     #[must_use]
     #[inline]
     pub fn pixels_in(&self, lo: [f64; 2], hi: [f64; 2]) -> [std::ops::Range<usize>; 2] {
+        const SLACK: f64 = 1e-7;
         let range = |k: usize| {
             let size = self.size[k] as i64;
-            let first = ceil((lo[k] - self.origin[k]) / self.pixel[k] - 0.5).clamp(0, size);
-            let last = (floor((hi[k] - self.origin[k]) / self.pixel[k] - 0.5) + 1).clamp(0, size);
+            let first = ceil((lo[k] - self.origin[k]) / self.pixel[k] - 0.5 - SLACK).clamp(0, size);
+            let last =
+                (floor((hi[k] - self.origin[k]) / self.pixel[k] - 0.5 + SLACK) + 1).clamp(0, size);
             first as usize..last as usize
         };
         [range(0), range(1)]
@@ -236,15 +243,14 @@ fn rasterize_triangle(
     if columns.is_empty() || rows.is_empty() {
         return;
     }
-    // The normal's component along the rays (as `cross` computes it).
-    let (e1, e2) = (sub(p[1], p[0]), sub(p[2], p[0]));
-    let nz = e1[u] * e2[v] - e1[v] * e2[u];
-    if nz == 0.0 || !nz.is_finite() {
+    // The projection's orientation, exactly: its sign is the normal's along the rays.
+    let facing = orient(q[0], q[1], q[2]);
+    if facing == 0.0 || !facing.is_finite() {
         // Edge-on: its neighbours' crossings close the surface along this ray.
         return;
     }
     // Counter-clockwise in the image plane, with each vertex's barycentric slot remembered.
-    let order: [usize; 3] = if nz > 0.0 { [0, 1, 2] } else { [0, 2, 1] };
+    let order: [usize; 3] = if facing > 0.0 { [0, 1, 2] } else { [0, 2, 1] };
     let (a, b, c) =
         ((tri[order[0]], q[order[0]]), (tri[order[1]], q[order[1]]), (tri[order[2]], q[order[2]]));
     // Edge functions opposite each vertex of the counter-clockwise order.
@@ -258,6 +264,8 @@ fn rasterize_triangle(
             if !(edges[0].covers(e[0]) && edges[1].covers(e[1]) && edges[2].covers(e[2])) {
                 continue;
             }
+            // Each value has its exact sign, so a covered centre has none below zero and, the
+            // triangle not being edge-on, not all three zero.
             let sum = e[0] + e[1] + e[2];
             if sum <= 0.0 {
                 continue;
@@ -267,10 +275,19 @@ fn rasterize_triangle(
             weights[order[1]] = e[1] / sum;
             weights[order[2]] = e[2] / sum;
             let fragment =
-                Fragment { depth: depth_of(weights), triangle: t, weights, entering: nz < 0.0 };
+                Fragment { depth: depth_of(weights), triangle: t, weights, entering: facing < 0.0 };
             out.push(((i + view.size[0] * j) as u32, fragment));
         }
     }
+}
+
+/// Twice the signed area of the image-plane triangle `a, b, c` (positive counter-clockwise),
+/// with its sign exact (Shewchuk's adaptive predicate): the coverage decisions that make a
+/// closed surface watertight are decided by signs, and those must not depend on rounding.
+#[inline]
+fn orient(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
+    let coord = |p: [f64; 2]| robust::Coord { x: p[0], y: p[1] };
+    robust::orient2d(coord(a), coord(b), coord(c))
 }
 
 /// `⌈x⌉` as an integer (saturating; 0 for NaN). Truncation and a compare: `f64::ceil` is a
@@ -286,17 +303,20 @@ fn floor(x: f64) -> i64 {
     t - i64::from((t as f64) > x)
 }
 
-/// The edge function of a triangle's directed edge `from → to` (positive on its left),
-/// computed from the endpoint with the smaller vertex index whichever way the edge runs, so that
-/// two triangles sharing the edge get values of exactly opposite sign; and which of the two
-/// owns a pixel centre on the edge.
+/// The edge function of a triangle's directed edge `from → to` (positive on its left, with its
+/// sign exact), and which of the two triangles sharing the edge owns a pixel centre on it.
+///
+/// It is the orientation of `p, q, x` with `p` and `q` the edge's ends in vertex-index order,
+/// whichever way the edge runs: with exact signs, every centre lies on one side of the edge
+/// for every triangle that has it, or exactly on it, where the "left or top" rule gives it to one
+/// of the two triangles sharing the edge.
 #[derive(Clone, Copy)]
 struct Edge {
-    /// The endpoint with the smaller vertex index.
-    origin: [f64; 2],
-    /// The other endpoint minus `origin`.
-    along: [f64; 2],
-    /// +1 where the edge runs from `origin`, −1 where it runs towards it.
+    /// The end with the smaller vertex index.
+    p: [f64; 2],
+    /// The other end.
+    q: [f64; 2],
+    /// +1 where the edge runs from `p`, −1 where it runs towards it.
     sign: f64,
     /// Whether a centre on the edge is inside: a "left or top" edge of a counter-clockwise
     /// triangle owns it, so that of two triangles sharing the edge (running opposite ways)
@@ -308,19 +328,13 @@ impl Edge {
     fn new(from: (u32, [f64; 2]), to: (u32, [f64; 2])) -> Self {
         let (p, q, sign) = if from.0 <= to.0 { (from.1, to.1, 1.0) } else { (to.1, from.1, -1.0) };
         let (du, dv) = (to.1[0] - from.1[0], to.1[1] - from.1[1]);
-        Self {
-            origin: p,
-            along: [q[0] - p[0], q[1] - p[1]],
-            sign,
-            owns_zero: dv < 0.0 || (dv == 0.0 && du > 0.0),
-        }
+        Self { p, q, sign, owns_zero: dv < 0.0 || (dv == 0.0 && du > 0.0) }
     }
 
     /// The edge function at `x`.
     #[inline]
     fn at(&self, x: [f64; 2]) -> f64 {
-        let (p, d) = (self.origin, self.along);
-        self.sign * (d[0] * (x[1] - p[1]) - d[1] * (x[0] - p[0]))
+        self.sign * orient(self.p, self.q, x)
     }
 
     /// Whether a centre with edge function `e` lies on the triangle's inner side of the edge.

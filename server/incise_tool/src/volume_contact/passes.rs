@@ -33,8 +33,8 @@ use incise_math::Vec3;
 /// Where a vertex lies against a region, per axis `k` in bits `4k..4k + 4`: below its lower
 /// face, above its upper face, and before or beyond those faces by more than [`slack`]. The
 /// bits that all three of a triangle's vertices share say on which side of a face its box lies
-/// (a non-finite coordinate sets every bit of its axis, so that, as with `f64::min` and
-/// `f64::max`, it does not widen the box).
+/// (a NaN coordinate sets every bit of its axis, so that, as with `f64::min` and `f64::max`, it
+/// does not widen the box).
 mod code {
     pub(super) const BELOW: u16 = 1;
     pub(super) const ABOVE: u16 = 2;
@@ -207,14 +207,13 @@ impl Passes {
             let view = View::covering(axis, lo, hi, resolution);
             let depths = (lo[axis], hi[axis]);
             let Self { images, codes, in_plane, candidates, spare, reach } = self;
-            let counted: [Direction; 2] = std::array::from_fn(|s| {
+            let mut directions: [Direction; 2] = std::array::from_fn(|s| {
                 let c = &mut candidates[s];
                 candidates_into(surfaces[s], &codes[s], &in_plane[s][axis], axis, c, spare)
             });
             // The surface with fewer candidates first; the other skips what lies outside it.
             let (first, second) =
                 if candidates[1].len() < candidates[0].len() { (1, 0) } else { (0, 1) };
-            let mut directions = counted;
             images[first].rasterize_into(surfaces[first], &view, candidates[first].iter().copied());
             reach_into(&images[first], directions[first], depths, reach);
             candidates[second].clone_from(&in_plane[second][axis]);

@@ -113,6 +113,9 @@ struct Report {
     /// On a GPU: the largest difference between a device pass's overlap volume and the CPU's,
     /// relative to the larger, over a second playing of the script.
     gpu_cpu_max_diff: Option<f64>,
+    /// On a GPU: voxels near a cutting shape that the device and the CPU disagreed on (held or
+    /// not), over the same second playing.
+    gpu_cpu_cut_mismatches: Option<usize>,
     /// Scenes with `[volume_contact]`: frames in which something overlapped, the most
     /// connected overlaps in one frame, and the largest total overlap volume (m³).
     volume_contact_frames: usize,
@@ -384,6 +387,8 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
         let (frames, _) = play(&mut checked, &script, &o, None)?;
         report.gpu_cpu_max_diff =
             Some(frames.iter().map(|(_, f)| f.counters.gpu_cpu_volume_diff).fold(0.0, f64::max));
+        report.gpu_cpu_cut_mismatches =
+            Some(frames.iter().map(|(_, f)| f.counters.gpu_cpu_cut_mismatches).sum());
     }
     if let Some(dir) = &args.record {
         let mut again =
@@ -611,6 +616,7 @@ fn summarise(
         fingerprint: format!("{:016x}", fingerprint(frames.iter().map(|(_, f)| f))),
         gpu: sim.gpu().unwrap_or_else(|| "none".to_owned()),
         gpu_cpu_max_diff: None,
+        gpu_cpu_cut_mismatches: None,
         volume_contact_frames: frames
             .iter()
             .filter(|(_, f)| f.counters.overlap_regions > 0)
@@ -691,9 +697,11 @@ fn print_report(r: &Report) {
     );
     if r.gpu != "none" {
         println!(
-            "volume contact on the GPU: {}; largest GPU/CPU overlap volume difference {}",
+            "volume contact and cut marking on the GPU: {}; largest GPU/CPU overlap volume \
+             difference {}; cut voxels marked differently {}",
             r.gpu,
-            r.gpu_cpu_max_diff.map_or("-".into(), |d| format!("{d:.2e}"))
+            r.gpu_cpu_max_diff.map_or("-".into(), |d| format!("{d:.2e}")),
+            r.gpu_cpu_cut_mismatches.map_or("-".into(), |d| d.to_string())
         );
     }
     if r.volume_contact_frames > 0 {

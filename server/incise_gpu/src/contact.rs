@@ -1,13 +1,16 @@
 //! The device behind volume contact: the surface's embeddings, its triangle slots and its
-//! deformed vertices kept on the GPU between frames, and the overlap passes run there.
+//! deformed vertices kept on the GPU between frames, and the overlap passes run there; and the
+//! marking of the voxels a cutting tool holds.
 
 use crate::buffers::Mirrored;
 use crate::context::{Gpu, GpuChoice, GpuError};
+use crate::cut_mark::CutMark;
 use crate::deform::Deform;
 use crate::ldi::{Ldi, Slots};
 use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_math::Vec3;
 use incise_tool::volume_contact::{ContactDevice, OverlapInterval};
+use incise_tool::{Pose, Shape};
 
 /// Volume contact's passes on a GPU.
 pub struct GpuContact {
@@ -16,6 +19,7 @@ pub struct GpuContact {
     ldi: Ldi,
     /// Every triangle slot: three vertex slots and its group (`u32::MAX`: free).
     triangles: Mirrored,
+    cut_mark: CutMark,
 }
 
 impl std::fmt::Debug for GpuContact {
@@ -36,7 +40,8 @@ impl GpuContact {
         let deform = Deform::new(&gpu);
         let ldi = Ldi::new(&gpu);
         let triangles = Mirrored::new(&gpu, "triangles", 4);
-        Self { gpu, deform, ldi, triangles }
+        let cut_mark = CutMark::new(&gpu);
+        Self { gpu, deform, ldi, triangles, cut_mark }
     }
 
     /// The device.
@@ -102,5 +107,15 @@ impl ContactDevice for GpuContact {
             region,
             resolution,
         )
+    }
+
+    fn cut_marks(
+        &mut self,
+        shape: &Shape,
+        pose: &Pose,
+        nodes: &[Vec3],
+        centres: &[EmbeddedPoint],
+    ) -> Option<Vec<bool>> {
+        self.cut_mark.run(&self.gpu, shape, pose, nodes, centres)
     }
 }

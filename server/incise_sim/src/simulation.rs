@@ -91,6 +91,9 @@ pub struct StageCounters {
     /// largest difference between a device pass's overlap volume and the same pass on the CPU,
     /// relative to the larger (0 otherwise).
     pub gpu_cpu_volume_diff: f64,
+    /// With [`Simulation::check_gpu`] on a scene whose volume contact runs on a GPU: voxels
+    /// near a cutting shape that the device and the CPU disagree on (held or not) this step.
+    pub gpu_cpu_cut_mismatches: usize,
 }
 
 /// What drives one step from outside the scene (a haptic tool's contact, a script, a test):
@@ -493,8 +496,9 @@ impl Simulation {
     }
 
     /// Runs each of volume contact's GPU passes on the CPU too, and reports the largest
-    /// difference in [`StageCounters::gpu_cpu_volume_diff`] (a benchmark's check; it costs the
-    /// CPU pass).
+    /// difference in [`StageCounters::gpu_cpu_volume_diff`], and the cut search's voxels the
+    /// two disagree on in [`StageCounters::gpu_cpu_cut_mismatches`] (a benchmark's check; it
+    /// costs the CPU pass).
     pub fn check_gpu(&mut self, check: bool) {
         if let Some(v) = self.surgery.as_mut().and_then(|s| s.volume_contact_mut()) {
             v.set_check(check);

@@ -8,8 +8,13 @@
 //! frame; embeddings and triangles only where a cut changed them. What comes back: the overlap
 //! intervals, which the CPU sums into regions ([`super::regions_of`]), the same as for its own
 //! passes.
+//!
+//! The same device marks which voxels a cutting tool holds ([`ContactDevice::cut_marks`]):
+//! paper 1 §4.1 finds the cut voxels on the GPU, beside the contact, from the node positions
+//! the contact sends anyway.
 
 use super::regions::OverlapInterval;
+use crate::{Pose, Shape};
 use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_math::Vec3;
 
@@ -47,4 +52,15 @@ pub trait ContactDevice: Send {
         region: (Vec3, Vec3),
         resolution: usize,
     ) -> Option<Vec<OverlapInterval>>;
+
+    /// For each point of `centres` (embedded in `nodes`), whether `shape` at `pose` holds it
+    /// strictly inside (`Shape::distance` < 0, in the device's `f32`). `None` when the device
+    /// does not mark this shape (a mesh): the caller tests the points on the CPU.
+    fn cut_marks(
+        &mut self,
+        shape: &Shape,
+        pose: &Pose,
+        nodes: &[Vec3],
+        centres: &[EmbeddedPoint],
+    ) -> Option<Vec<bool>>;
 }

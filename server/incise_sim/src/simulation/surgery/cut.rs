@@ -6,6 +6,9 @@
 //! A voxel's deformed centre is its rest centre's trilinear interpolation in the element that
 //! owns it, the same embedding the surface vertices have.
 //!
+//! On a device (the GPU volume contact runs on), the voxels near the shape are tested there,
+//! all at once, from the node positions; the flood then keeps to the voxels it marked.
+//!
 //! The flood is seeded where the shape meets the surface, and also inside the elements whose
 //! deformed boxes the shape's box overlaps: paper 1 finds the voxels from the surface of the
 //! *intersection volume*, which includes the tool's own surface inside the organ, so a blade
@@ -16,6 +19,8 @@ use incise_grid::BranchedGrid;
 use incise_grid::hex8::shape;
 use incise_math::Vec3;
 use incise_mesh::TetTopology;
+use incise_fem::forcefield::springs::EmbeddedPoint;
+use incise_tool::volume_contact::ContactDevice;
 use incise_tool::{Pose, Shape, SweptBlade, flood};
 
 /// Deformed positions of the grid's nodes by grid node id, and the grid: what a voxel's deformed
@@ -50,20 +55,25 @@ impl DeformedGrid<'_> {
 
     /// The deformed centre of voxel `v` of the element `frame` describes.
     fn centre_in(&self, frame: &ElementFrame, v: u32) -> Vec3 {
+        let mut p = [0.0; 3];
+        for (q, w) in frame.corners.iter().zip(self.weights_in(frame, v)) {
+            for k in 0..3 {
+                p[k] += w * q[k];
+            }
+        }
+        p
+    }
+
+    /// The trilinear weights of voxel `v`'s centre on the corners of the element `frame`
+    /// describes.
+    fn weights_in(&self, frame: &ElementFrame, v: u32) -> [f64; 8] {
         let grid = self.grid;
         let (size, h, dims) = (grid.element_size(), grid.spacing(), grid.fine().dims());
         let c = [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])];
         let xi: Vec3 = std::array::from_fn(|a| {
             ((f64::from(c[a]) + 0.5) * h[a] - f64::from(frame.cell[a]) * size[a]) / size[a]
         });
-        let mut p = [0.0; 3];
-        for (n, q) in frame.corners.iter().enumerate() {
-            let w = shape(n, xi);
-            for k in 0..3 {
-                p[k] += w * q[k];
-            }
-        }
-        p
+        std::array::from_fn(|n| shape(n, xi))
     }
 
     /// The face neighbours of `v` that hold material and are still linked to it.
@@ -97,20 +107,36 @@ impl DeformedGrid<'_> {
     /// grown by `reach`: those of the elements whose deformed bounding boxes overlap that box.
     fn voxels_near(
         &self,
-        (lo, hi): (Vec3, Vec3),
+        bounds: (Vec3, Vec3),
         reach: f64,
         keep: impl Fn(Vec3) -> bool,
     ) -> Vec<u32> {
+        let mut out = Vec::new();
+        self.each_near(bounds, reach, |v, c, _| {
+            if keep(c) {
+                out.push(v);
+            }
+        });
+        out
+    }
+
+    /// Calls `f(voxel, deformed centre, the centre's embedding in the grid's nodes)` for every
+    /// voxel whose deformed centre lies in `(lo, hi)` grown by `reach`, element by element.
+    fn each_near(
+        &self,
+        (lo, hi): (Vec3, Vec3),
+        reach: f64,
+        mut f: impl FnMut(u32, Vec3, &dyn Fn() -> EmbeddedPoint),
+    ) {
         // A centre outside the box is not tested (the tool's distance costs more than the
         // centre); the margin, far above the rounding of the tool's transforms, keeps a centre
-        // that `keep` takes on the box's boundary.
+        // that a test takes on the box's boundary.
         let margin = 1e-6 * self.voxel();
         let (box_lo, box_hi): (Vec3, Vec3) = (
             std::array::from_fn(|k| lo[k] - reach - margin),
             std::array::from_fn(|k| hi[k] + reach + margin),
         );
         let in_box = |c: &Vec3| (0..3).all(|k| c[k] >= box_lo[k] && c[k] <= box_hi[k]);
-        let mut out = Vec::new();
         let mut voxels = Vec::new();
         for (id, element) in self.grid.top().elements() {
             let mut a = [f64::INFINITY; 3];
@@ -129,12 +155,15 @@ impl DeformedGrid<'_> {
             voxels.clear();
             self.grid.element_voxels_into(id, &mut voxels);
             let frame = self.frame(element);
-            out.extend(voxels.iter().copied().filter(|&v| {
+            for &v in &voxels {
                 let c = self.centre_in(&frame, v);
-                in_box(&c) && keep(c)
-            }));
+                if in_box(&c) {
+                    let embedding =
+                        || EmbeddedPoint { nodes: element.nodes, weights: self.weights_in(&frame, v) };
+                    f(v, c, &embedding);
+                }
+            }
         }
-        out
     }
 }
 
@@ -160,23 +189,67 @@ fn seeds(
     seeds
 }
 
+/// A device that tests which voxels a cutting shape holds, for [`voxels_inside`].
+pub struct Marker<'a> {
+    /// The device.
+    pub device: &'a mut dyn ContactDevice,
+    /// Whether the CPU tests the voxels too.
+    pub check: bool,
+    /// With `check`: voxels the device and the CPU disagree on, added to.
+    pub mismatches: &'a mut usize,
+}
+
 /// The voxels `inner` at `pose` cuts: those whose deformed centres it contains, connected to
-/// the voxels under the surface points within a voxel of it. Sorted.
+/// the voxels under the surface points within a voxel of it. Sorted. With a `marker` the
+/// centres near the shape are tested on its device (in `f32`: a centre within rounding of
+/// the shape's surface may be taken either way), unless it does not mark this shape.
 pub fn voxels_inside(
     inner: &Shape,
     pose: &Pose,
     grid: &DeformedGrid,
     surface: &OrganSurface,
     positions: &[Vec3],
+    marker: Option<Marker>,
 ) -> Vec<u32> {
     let inside = |p: Vec3| inner.distance(pose.tool_from_grid(p)).0;
     let bounds = inner.grid_bounds(pose);
     let mut seeds = seeds(surface, positions, grid.voxel(), bounds, inside);
+    if let Some(held) = marker.and_then(|m| marked(m, inner, pose, grid, bounds)) {
+        // Every voxel the shape holds has its centre in the shape's box, and so is a candidate
+        // the device marked: a voxel it did not mark is not held.
+        seeds.extend_from_slice(&held);
+        return flood(seeds, |v| held.binary_search(&v).is_ok(), |v, out| grid.linked(v, out));
+    }
     seeds.extend(grid.voxels_near(bounds, 0.0, |c| inside(c) < 0.0));
     if seeds.is_empty() {
         return seeds;
     }
     flood(seeds, |v| grid.centre(v).is_some_and(|c| inside(c) < 0.0), |v, out| grid.linked(v, out))
+}
+
+/// The voxels in `bounds` the marker's device finds `inner` at `pose` holds, sorted; `None`
+/// when it does not mark this shape.
+fn marked(
+    marker: Marker,
+    inner: &Shape,
+    pose: &Pose,
+    grid: &DeformedGrid,
+    bounds: (Vec3, Vec3),
+) -> Option<Vec<u32>> {
+    let (mut voxels, mut centres, mut embeddings) = (Vec::new(), Vec::new(), Vec::new());
+    grid.each_near(bounds, 0.0, |v, c, embedding| {
+        voxels.push(v);
+        centres.push(c);
+        embeddings.push(embedding());
+    });
+    let marks = marker.device.cut_marks(inner, pose, grid.by_grid_node, &embeddings)?;
+    if marker.check {
+        let cpu = centres.iter().map(|&c| inner.distance(pose.tool_from_grid(c)).0 < 0.0);
+        *marker.mismatches += cpu.zip(&marks).filter(|&(c, &m)| c != m).count();
+    }
+    let mut held: Vec<u32> = voxels.into_iter().zip(marks).filter_map(|(v, m)| m.then_some(v)).collect();
+    held.sort_unstable();
+    Some(held)
 }
 
 /// The links `blade`'s mid-plane swept across between the two frames: pairs of linked voxels

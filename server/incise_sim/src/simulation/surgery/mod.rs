@@ -512,20 +512,18 @@ impl Simulation {
         let mut tets: Vec<usize> = Vec::new();
         let mut events: Vec<CutEvent> = Vec::new();
         let scattered = self.grid().map(|_| self.positions_by_grid_node());
-        for (i, rig) in surgery.rigs.iter().enumerate() {
+        let Surgery { rigs, surface, positions, volume, .. } = &mut *surgery;
+        let mut mismatches = 0;
+        for (i, rig) in rigs.iter().enumerate() {
             let (Some(pose), Some(inner)) = (rig.pose, rig.inner.as_ref()) else { continue };
             let mut event = CutEvent { tool: i, ..CutEvent::default() };
             match (rig.spec.cutting, self.grid(), &scattered) {
                 (Cutting::Off, ..) => continue,
                 (Cutting::Remove, Some(grid), Some(by_grid_node)) => {
                     let deformed = DeformedGrid { grid, by_grid_node };
-                    let voxels = cut::voxels_inside(
-                        inner,
-                        &pose.pose,
-                        &deformed,
-                        &surgery.surface,
-                        &surgery.positions,
-                    );
+                    let marker = volume.as_mut().and_then(|v| v.marker(&mut mismatches));
+                    let voxels =
+                        cut::voxels_inside(inner, &pose.pose, &deformed, surface, positions, marker);
                     event.voxels_removed = voxels.len();
                     edit.remove_voxels.extend(voxels);
                 }
@@ -536,8 +534,7 @@ impl Simulation {
                     let Some(blade) = SweptBlade::new(inner, &from, &pose.pose, link) else {
                         continue;
                     };
-                    let links =
-                        cut::links_crossed(&blade, &deformed, &surgery.surface, &surgery.positions);
+                    let links = cut::links_crossed(&blade, &deformed, surface, positions);
                     event.links_severed = links.len();
                     edit.sever_links.extend(links);
                 }
@@ -553,6 +550,7 @@ impl Simulation {
             }
         }
         counters.cut_ns += elapsed(t);
+        counters.gpu_cpu_cut_mismatches += mismatches;
         if events.is_empty() {
             return Ok(false);
         }

@@ -19,9 +19,12 @@
 //! `gpu` key asks for one; `incise_scene::attach_gpu` does that): the surface's embeddings and
 //! triangles stay on the device, which deforms the surface from the node positions sent each
 //! step and runs the layered depth images there; the overlap intervals come back and are summed
-//! here, as the CPU's own are. A pass that does not fit the device runs on the CPU.
+//! here, as the CPU's own are. A pass that does not fit the device runs on the CPU. The device
+//! also tests which voxels a tool's cutting shape holds, for the cut search
+//! ([`super::cut::voxels_inside`]).
 
 use super::OrganSurface;
+use super::cut;
 use crate::config::VolumeContactSpec;
 use incise_fem::forcefield::volume::{OverlapRegion, VolumePenalty};
 use incise_fem::{Executor, HexModel};
@@ -95,6 +98,14 @@ impl VolumeContact {
     /// The device's name, if the passes run on one.
     pub(crate) fn device_name(&self) -> Option<String> {
         self.device.as_ref().map(|d| d.name())
+    }
+
+    /// The device, as the cut search's voxel marker (`None` on the CPU), counting into
+    /// `mismatches` the voxels it and the CPU disagree on when checked.
+    pub(crate) fn marker<'a>(&'a mut self, mismatches: &'a mut usize) -> Option<cut::Marker<'a>> {
+        let check = self.check;
+        let device = self.device.as_deref_mut()?;
+        Some(cut::Marker { device, check, mismatches })
     }
 
     /// Whether each device pass is also run on the CPU and compared.

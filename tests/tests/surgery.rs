@@ -67,7 +67,7 @@ fn a_pressed_probe_is_pushed_back_and_dents_the_surface() {
     assert!(tool.force()[2] > 0.0, "the tissue pushes the probe up");
 }
 
-use incise_sim::config::{Cutting, ShapeSpec, ToolSpec};
+use incise_sim::config::{Cutting, ShapeSpec, ToolContact, ToolSpec};
 use incise_tool::{Primitive, Shape};
 
 /// The 13,648-voxel liver with `tools`.
@@ -90,6 +90,7 @@ fn cutter(name: &str, outer: Primitive, inner_offset_z: f64) -> ToolSpec {
             )
             .unwrap(),
         )),
+        contact: ToolContact::Points,
         stiffness: 300.0,
         damping: Some(0.0),
         cutting: Cutting::Remove,

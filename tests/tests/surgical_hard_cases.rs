@@ -1123,7 +1123,7 @@ inner = { shape = \"blade\", length = 0.02, height = 0.02, thickness = 0.0005 }
 /// edge or vertex after every frame that removed some, and everything stays finite.
 #[test]
 fn tensor_mass_tetrahedra_are_pushed_and_cut() {
-    use incise_sim::config::{Cutting, ShapeSpec, ToolSpec};
+    use incise_sim::config::{Cutting, ShapeSpec, ToolContact, ToolSpec};
     use incise_tool::{Primitive, Shape};
     let path = incise_tests::scene("liver_tensor_mass.toml");
     let mut scene = incise_scene::read_scene(&path).unwrap();
@@ -1133,6 +1133,7 @@ fn tensor_mass_tetrahedra_are_pushed_and_cut() {
         inner: Some(ShapeSpec::Shape(
             Shape::new(Primitive::Sphere { radius: 0.01 }, [0.0; 3]).unwrap(),
         )),
+        contact: ToolContact::Points,
         stiffness: 100.0,
         damping: None,
         cutting: Cutting::Remove,

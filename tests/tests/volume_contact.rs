@@ -280,6 +280,128 @@ fn on_a_gpu_the_halves_are_pushed_apart_as_on_the_cpu() {
     );
 }
 
+fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// A 40 × 40 × 15 mm slab of tissue 1 held at its bottom, no gravity, pressed from above by a
+/// flat punch: a 20 × 20 × 10 mm box mesh (12 triangles) whose bottom face is at the tool's
+/// origin, pushing by volume contact. It is lowered to `depth` (m) below the slab's top over
+/// 100 steps of 1 ms, then held 200. Returns the last frame's tool force, the overlap volume
+/// and the surface points bounding it, and the least and the mean the slab's top sank under
+/// the punch (m, over its vertices more than 1 mm inside the punch's footprint).
+fn press_punch(depth: f64) -> (Vec3, f64, usize, (f64, f64)) {
+    use incise_sim::config::ShapeSpec;
+    use incise_tool::Shape;
+    let v = volume([8, 8, 3], |_, _, _| 1);
+    let body = "gravity = [0.0, 0.0, 0.0]
+[[fixed]]
+plane = \"z\"
+value = 0.0
+[[tools]]
+name = \"punch\"
+contact = \"volume\"
+outer = { mesh = \"punch.stl\" }
+";
+    let mut config = config(0.001, body);
+    let half = 0.01;
+    let corners: Vec<Vec3> = (0..8)
+        .map(|i| {
+            let at = |bit: usize, lo: f64, hi: f64| if i >> bit & 1 == 1 { hi } else { lo };
+            [at(0, -half, half), at(1, -half, half), at(2, 0.0, 0.01)]
+        })
+        .collect();
+    let faces =
+        [[0, 2, 6, 4], [1, 3, 7, 5], [0, 1, 5, 4], [2, 3, 7, 6], [0, 1, 3, 2], [4, 5, 7, 6]];
+    // Each triangle turned to face away from the box's centre.
+    let triangles = faces
+        .iter()
+        .flat_map(|f| [[f[0], f[1], f[2]], [f[0], f[2], f[3]]])
+        .map(|t: [u32; 3]| {
+            let p = t.map(|i| corners[i as usize]);
+            let (u, w) = (sub(p[1], p[0]), sub(p[2], p[0]));
+            let n =
+                [u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]];
+            let out = [p[0][0], p[0][1], p[0][2] - 0.005];
+            if (0..3).map(|k| n[k] * out[k]).sum::<f64>() < 0.0 { [t[0], t[2], t[1]] } else { t }
+        })
+        .collect();
+    let punch = incise_mesh::TriMesh::new(corners, triangles).unwrap();
+    config.tools[0].outer = ShapeSpec::Shape(Shape::mesh(&punch, [0.0; 3]).unwrap());
+    let mut sim = Simulation::new(&config, &v, "contact.toml").unwrap();
+    let (top, centre) = (0.015, [0.0203, 0.0197]);
+    let mut last = None;
+    for i in 0..300 {
+        let lowered = depth * (f64::from(i.min(100)) / 100.0);
+        let pose = ToolPose { pose: Pose::at([centre[0], centre[1], top - lowered]), gripper: 0.0 };
+        let inputs =
+            StepInputs { tools: vec![ToolInput { tool: 0, pose }], ..StepInputs::default() };
+        last = Some(step(&mut sim, &inputs));
+    }
+    let frame = last.unwrap();
+    let tool = &frame.surgical.tools[0];
+    let g = sim.surface_geometry(None, None).unwrap();
+    let sunk: Vec<f64> = g
+        .positions
+        .iter()
+        .filter(|p| {
+            f64::from(p[2]) > 0.5 * top
+                && (0..2).all(|a| (f64::from(p[a]) - centre[a]).abs() < half - 0.001)
+        })
+        .map(|p| top - f64::from(p[2]))
+        .collect();
+    assert!(sunk.len() >= 9, "vertices under the punch: {sunk:?}");
+    let least = sunk.iter().copied().fold(f64::INFINITY, f64::min);
+    let mean = sunk.iter().sum::<f64>() / sunk.len() as f64;
+    (tool.force(), tool.overlap_volume, tool.contact_points, (least, mean))
+}
+
+#[test]
+fn a_tool_mesh_pressed_into_an_organ_is_pushed_back_by_the_overlap_volume() {
+    // With contact = "volume" the punch's mesh is measured against the slab's surface by
+    // layered depth images, as an organ against an organ: the slab is pushed down, the punch
+    // up. Under a flat punch both sides of the overlap are flat faces of the same area `a`, so
+    // the penalty's area is `a`, and its force is `k_p V` (pressure × overlap volume): the
+    // known answer the force is checked against (within 5 %: the volume reported is the
+    // step's start, the force its end, and the frames are at rest to well under that). The
+    // punch is pushed straight up (sideways under 1 % of it), harder the deeper it goes
+    // (1, 2, 3 mm), and the slab's top under it sinks on average by the press less the
+    // penalty's depth `V / a` (within 0.1 mm, a fiftieth of the 5 mm triangles the mean is
+    // sampled on). The penalty presses each connected overlap with one pressure (its volume's
+    // gradient), so the surface under the punch takes the slab's shape under a uniform load,
+    // not the punch's flat face: single vertices sink unequally, and each must sink by at
+    // least 80 % of the press. A contact that did not push would leave the slab unmoved.
+    let pressure = 1e7;
+    let area = 0.02 * 0.02;
+    let mut previous = 0.0;
+    for depth in [0.001, 0.002, 0.003] {
+        let (force, overlap, points, (least, mean)) = press_punch(depth);
+        let penalty_depth = overlap / area;
+        println!(
+            "pressed {:.0} mm: force {:?} N (k_p V = {:.4} N) over {points} surface points; \
+             top sunk {:.3} mm on average, {:.3} mm at least, press less penalty depth {:.3} mm",
+            depth * 1e3,
+            force,
+            pressure * overlap,
+            mean * 1e3,
+            least * 1e3,
+            (depth - penalty_depth) * 1e3
+        );
+        assert!(points > 0 && overlap > 0.0, "the punch touches the slab");
+        assert!(force[2] > previous, "the punch is pushed up, harder when deeper: {force:?}");
+        assert!(force[0].hypot(force[1]) < 0.01 * force[2], "pushed straight back: {force:?}");
+        let expected = pressure * overlap;
+        assert!(
+            (force[2] - expected).abs() < 0.05 * expected,
+            "force {} N, k_p V {expected} N",
+            force[2]
+        );
+        assert!((mean - (depth - penalty_depth)).abs() < 1e-4, "the top sank {mean} m on average");
+        assert!(least > 0.8 * depth, "a vertex under the punch sank only {least} m");
+        previous = force[2];
+    }
+}
+
 /// The voxels a spherical cutter (radius 7.3 mm) drawn through the 60 × 20 × 20 mm bar along
 /// x removes over 50 steps, with `gpu` the scene's key and the device's marks checked against
 /// the CPU's; also the voxels the two disagreed on and the adapter, if one was used.
@@ -305,7 +427,8 @@ inner = {{ shape = \"sphere\", radius = 0.0073 }}
     for i in 0..50 {
         let position = [0.004 + 0.001 * f64::from(i), 0.0103, 0.0121];
         let pose = ToolPose { pose: Pose::at(position), gripper: 0.0 };
-        let inputs = StepInputs { tools: vec![ToolInput { tool: 0, pose }], ..StepInputs::default() };
+        let inputs =
+            StepInputs { tools: vec![ToolInput { tool: 0, pose }], ..StepInputs::default() };
         let frame = step(&mut sim, &inputs);
         removed.extend_from_slice(&frame.surgical.edit.remove_voxels);
         mismatches += frame.counters.gpu_cpu_cut_mismatches;

@@ -16,7 +16,7 @@ use crate::timing::quantile;
 use anyhow::{Context, bail};
 use incise_fem::Executor;
 use incise_math::Vec3;
-use incise_sim::config::{Cutting, Model, ShapeSpec, ToolSpec, VolumeSpec};
+use incise_sim::config::{Cutting, Model, ShapeSpec, ToolContact, ToolSpec, VolumeSpec};
 use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
 use incise_tool::{Pose, Primitive, Shape, ToolPose};
 use serde::Serialize;
@@ -172,6 +172,7 @@ fn scalpel(unit: f64) -> ToolSpec {
             )
             .expect("positive"),
         )),
+        contact: ToolContact::Points,
         stiffness: 5.0,
         damping: None,
         cutting: Cutting::Remove,
@@ -188,6 +189,7 @@ fn transector(unit: f64, width: f64) -> ToolSpec {
         name: "transector".into(),
         outer: shape.clone(),
         inner: Some(shape),
+        contact: ToolContact::Points,
         stiffness: 300.0,
         damping: None,
         cutting: Cutting::Remove,

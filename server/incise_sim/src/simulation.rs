@@ -6,7 +6,8 @@
 use crate::calibration::{Calibration, calibrate};
 use crate::config::{
     DEFAULT_CG_TOLERANCE, HexSpec, Integrator, LengthUnit, Level, Model, SceneConfig, SceneError,
-    StaticSolver, TensorMassSpec, TetIntegrator, TetSource, VolumeSpec,
+    StaticSolver, TensorMassSpec, TetIntegrator, TetSource, ToolContact, VolumeContactSpec,
+    VolumeSpec,
 };
 use crate::regions::{
     empty_region_hold, fixed_at, fixed_nodes, missing_label_holds, patch_forces, patch_loads,
@@ -455,7 +456,17 @@ impl Simulation {
                 }
                 Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
             };
-            let volume = match &config.volume_contact {
+            // A tool that pushes by volume needs the contact even where the tissues do not.
+            let tool_meshes = config.tools.iter().any(|t| t.contact == ToolContact::Volume);
+            let spec = config.volume_contact.clone().or_else(|| {
+                tool_meshes.then(|| VolumeContactSpec {
+                    pressure: VolumeContactSpec::DEFAULT_PRESSURE,
+                    resolution: VolumeContactSpec::DEFAULT_RESOLUTION,
+                    pairs: Vec::new(),
+                    self_contact: false,
+                })
+            });
+            let volume = match &spec {
                 Some(spec) => Some(volume_contact(spec, &body, &surface).map_err(build)?),
                 None => None,
             };
@@ -578,6 +589,9 @@ impl Simulation {
         counters.mechanics_ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
         if let Some(springs) = &springs {
             self.finish_tools(springs, &mut surgical);
+        }
+        if let Some(volume) = &volume {
+            self.finish_volume_tools(volume, &mut surgical);
         }
         Ok(self.finish(start, counters, surgical))
     }

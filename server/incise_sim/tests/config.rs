@@ -540,6 +540,19 @@ fn tools_are_scene_keys() {
 }
 
 #[test]
+fn a_mesh_tool_may_push_by_volume_without_a_point_stiffness() {
+    use incise_sim::config::ToolContact;
+    let tools = SCALPEL.replace(
+        "name = \"grasper\"\nstiffness = 300.0\n",
+        "name = \"grasper\"\ncontact = \"volume\"\n",
+    );
+    let config = SceneConfig::from_toml(&with_tools(&tools), "t.toml").unwrap();
+    let contact: Vec<(ToolContact, f64)> =
+        config.tools.iter().map(|t| (t.contact, t.stiffness)).collect();
+    assert_eq!(contact, [(ToolContact::Points, 400.0), (ToolContact::Volume, 0.0)]);
+}
+
+#[test]
 fn tool_errors_name_the_key_and_line() {
     let first = GOOD.lines().count() + 1;
     let cases: Vec<(String, usize, &str, &str)> = vec![
@@ -561,6 +574,10 @@ fn tool_errors_name_the_key_and_line() {
         (SCALPEL.replace("name = \"grasper\"", "name = \"scalpel\""), first + 15, "tools[1].name", "two tools"),
         (SCALPEL.replace("unit = \"mm\"", "unit = \"inch\""), first + 17, "tools[1].outer.unit", "inch"),
         (SCALPEL.replace("open_above = 0.3", "open_above = 0.01"), first + 22, "tools[1].jaws.open_above", "close_below"),
+        (SCALPEL.replace("stiffness = 400.0", "contact = \"volume\""), first + 2, "tools[0].contact", "mesh"),
+        (SCALPEL.replace("stiffness = 400.0", "stiffness = 400.0\ncontact = \"springs\""), first + 3, "tools[0].contact", "springs"),
+        (SCALPEL.replace("name = \"grasper\"\n", "name = \"grasper\"\ncontact = \"volume\"\n"), first + 17, "tools[1].stiffness", "pressure"),
+        (SCALPEL.replace("stiffness = 400.0\n", ""), first, "tools[0].stiffness", "missing"),
     ];
     for (tools, line, key, what) in cases {
         let text = with_tools(&tools);

@@ -363,6 +363,69 @@ impl Linearisation {
         lin
     }
 
+    /// The linearisation of the penalty of an overlap between the tissue and a rigid tool mesh
+    /// (volume contact: `incise_fem::forcefield::volume`), for a tool whose origin is at
+    /// `origin`. `tool_gradients` gives each tool vertex's position and `gᵢ = ∂V/∂pᵢ`;
+    /// `stiffness` is the penalty's `k_p / A` and `volume` the overlap's volume `V` at the end
+    /// of the step (a negative one, past where the linearised overlap closes, pushes nothing).
+    ///
+    /// The tool's vertices move rigidly with it: a translation `t` and a small rotation `θ`
+    /// about the origin change `V` by `Gₜ · t + G_θ · θ`, with `Gₜ = Σ gᵢ` and
+    /// `G_θ = Σ (pᵢ − o) × gᵢ`. The force `−(k_p/A) V Gₜ` and the torque `−(k_p/A) V G_θ`
+    /// then have the rank-one Jacobian `−(k_p/A) [Gₜ; G_θ][Gₜ; G_θ]ᵀ`: symmetric and
+    /// non-positive, so a haptic loop extrapolating with it adds no energy. The change of the
+    /// gradients themselves as the tool moves (the volume's second derivative) is left out, as
+    /// the field's own linearisation leaves it out. No damping acts on the tool here: the
+    /// integrator's Rayleigh term damps the overlap's growth on the tissue's side.
+    #[must_use]
+    pub fn of_overlap(
+        origin: Vec3,
+        stiffness: f64,
+        volume: f64,
+        tool_gradients: impl IntoIterator<Item = (Vec3, Vec3)>,
+    ) -> Self {
+        let mut g = [0.0; 6];
+        for (p, gi) in tool_gradients {
+            let r: Vec3 = std::array::from_fn(|k| p[k] - origin[k]);
+            let m = cross(&r, &gi);
+            for k in 0..3 {
+                g[k] += gi[k];
+                g[3 + k] += m[k];
+            }
+        }
+        let mut lin = Self::none(origin);
+        if volume.is_nan() || volume <= 0.0 {
+            return lin;
+        }
+        let push = stiffness * volume;
+        for a in 0..3 {
+            lin.force[a] = -push * g[a];
+            lin.torque[a] = -push * g[3 + a];
+        }
+        for (row, ga) in lin.jacobian.iter_mut().zip(g) {
+            for (c, gb) in row.iter_mut().zip(g) {
+                *c = -stiffness * ga * gb;
+            }
+        }
+        lin
+    }
+
+    /// Adds `other`'s force, torque and derivatives (taken about the same origin).
+    pub fn add(&mut self, other: &Self) {
+        for a in 0..3 {
+            self.force[a] += other.force[a];
+            self.torque[a] += other.torque[a];
+            for b in 0..3 {
+                self.damping[a][b] += other.damping[a][b];
+            }
+        }
+        for (row, o) in self.jacobian.iter_mut().zip(&other.jacobian) {
+            for (c, oc) in row.iter_mut().zip(o) {
+                *c += oc;
+            }
+        }
+    }
+
     /// The force and torque at the pose moved by translation `dt` (m) and rotation vector
     /// `dtheta` (rad) about the origin, to first order.
     #[must_use]

@@ -88,6 +88,18 @@ fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> (Vec3, Feature) {
 }
 
 impl MeshShape {
+    /// The vertices (m, the mesh's own frame).
+    #[must_use]
+    pub fn vertices(&self) -> &[Vec3] {
+        &self.vertices
+    }
+
+    /// The triangles, outward (counter-clockwise seen from outside).
+    #[must_use]
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
     /// The shape of a checked closed mesh (outward oriented, as [`TriMesh::new`] leaves it).
     #[must_use]
     pub fn new(mesh: &TriMesh) -> Self {

@@ -103,6 +103,21 @@ impl Shape {
         Ok(Self { kind: Kind::Mesh(Arc::new(MeshShape::new(mesh))), offset })
     }
 
+    /// A mesh shape's closed surface in the tool frame (its vertices with the offset applied,
+    /// and its outward triangles): what volume contact rasterises. `None` for a primitive.
+    #[must_use]
+    pub fn closed_surface(&self) -> Option<(Vec<Vec3>, &[[u32; 3]])> {
+        match &self.kind {
+            Kind::Primitive(_) => None,
+            Kind::Mesh(mesh) => {
+                let o = self.offset;
+                let vertices =
+                    mesh.vertices().iter().map(|p| std::array::from_fn(|k| p[k] + o[k])).collect();
+                Some((vertices, mesh.triangles()))
+            }
+        }
+    }
+
     /// Where the shape's origin is in the tool frame (m).
     #[must_use]
     pub fn offset(&self) -> Vec3 {

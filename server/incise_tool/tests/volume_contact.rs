@@ -522,3 +522,55 @@ proptest::proptest! {
         }
     }
 }
+
+#[test]
+fn a_tool_meshs_force_and_its_derivative_follow_the_overlap() {
+    // A tool box pressed flat into an organ box, its bottom 0.1 below the organ's top: the
+    // overlap is 0.6 × 0.6 × 0.1. The tool's penalty force is `−k V Σ gᵢ` over its vertices:
+    // straight up, `k V a` with `a` the face's area (0.36). The Jacobian's translation block
+    // must match central differences of that force as the tool moves (V re-measured, the tool
+    // moved by a whole pixel so that every view, not only z's, sees the move exactly; the
+    // gradient of a flat face does not change as it moves along its normal, so to rounding),
+    // and the two sides' gradients must cancel (moving both together changes nothing).
+    use incise_tool::Linearisation;
+    let organ = cuboid([0.0; 3], [1.0; 3], [0.0, 0.0, 1.0], 0.0);
+    let tool_at =
+        |dz: f64| cuboid([0.2, 0.2, 0.9 + dz], [0.8, 0.8, 1.5 + dz], [0.0, 0.0, 1.0], 0.0);
+    // Pixels of 0.05 whose edges fall on the boxes' faces: the views measure the boxes exactly.
+    let region = ([-0.2; 3], [1.4; 3]);
+    let origin = [0.5, 0.5, 0.9];
+    let k = 1e3;
+    let force = |dz: f64| {
+        let tool = tool_at(dz);
+        let i = intersection_in(&organ.surface(), &tool.surface(), region, 32);
+        let gradients = tool.positions.iter().copied().zip(i.gradient_b.iter().copied());
+        let moved: Vec3 = [origin[0], origin[1], origin[2] + dz];
+        (Linearisation::of_overlap(moved, k, i.volume, gradients), i)
+    };
+    let (lin, i) = force(0.0);
+    assert!((i.volume - 0.036).abs() < 1e-9, "the overlap: {}", i.volume);
+    let sum = |g: &[Vec3]| -> Vec3 { std::array::from_fn(|a| g.iter().map(|v| v[a]).sum()) };
+    let (ga, gb) = (sum(&i.gradient_a), sum(&i.gradient_b));
+    for a in 0..3 {
+        assert!((ga[a] + gb[a]).abs() < 1e-9, "the sides' gradients cancel: {ga:?} {gb:?}");
+    }
+    let up = k * 0.036 * 0.36;
+    println!("force {:?}, torque {:?}, expected up {up}", lin.force, lin.torque);
+    assert!((lin.force[2] - up).abs() < 1e-9 * up && lin.force[0].abs() < 1e-12);
+    assert!(lin.torque.iter().all(|t| t.abs() < 1e-9 * up), "about its centre: {:?}", lin.torque);
+    let h = 0.05;
+    let fd = (force(h).0.force[2] - force(-h).0.force[2]) / (2.0 * h);
+    println!("∂F_z/∂z: {} against central differences {fd}", lin.jacobian[2][2]);
+    assert!((lin.jacobian[2][2] - fd).abs() < 1e-6 * fd.abs(), "{} vs {fd}", lin.jacobian[2][2]);
+    assert!((lin.jacobian[2][2] + k * 0.36 * 0.36).abs() < 1e-9, "−k a²");
+    // Symmetric and non-positive: extrapolating with it adds no energy.
+    for r in 0..6 {
+        for c in 0..6 {
+            assert!((lin.jacobian[r][c] - lin.jacobian[c][r]).abs() <= 1e-12 * up);
+        }
+        assert!(lin.jacobian[r][r] <= 0.0);
+    }
+    // Apart: nothing.
+    let none = Linearisation::of_overlap(origin, k, -1e-3, [([0.0; 3], [0.0, 0.0, 1.0])]);
+    assert_eq!(none, Linearisation::none(origin));
+}

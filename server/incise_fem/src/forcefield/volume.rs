@@ -61,8 +61,23 @@ impl OverlapRegion {
         pressure: f64,
         x: &[Vec3],
     ) -> Option<Self> {
+        Self::against(volume, vertex_gradients, [], pressure, x)
+    }
+
+    /// As [`OverlapRegion::new`], for an overlap with a body whose vertices the step does not
+    /// move (a tool posed from outside): `fixed_gradients` are the volume's gradient with
+    /// respect to its vertices, which count toward the contact's area (each side of the
+    /// overlap holds half its `Σ |gᵢ|`) but move no node.
+    #[must_use]
+    pub fn against(
+        volume: f64,
+        vertex_gradients: impl IntoIterator<Item = (EmbeddedPoint, Vec3)>,
+        fixed_gradients: impl IntoIterator<Item = Vec3>,
+        pressure: f64,
+        x: &[Vec3],
+    ) -> Option<Self> {
         let mut by_node: Vec<(u32, Vec3)> = Vec::new();
-        let mut area = 0.0;
+        let mut area: f64 = fixed_gradients.into_iter().map(|g| 0.5 * dot(&g, &g).sqrt()).sum();
         for (point, g) in vertex_gradients {
             area += 0.5 * dot(&g, &g).sqrt();
             for (&n, &w) in point.nodes.iter().zip(&point.weights) {
@@ -113,8 +128,9 @@ impl OverlapRegion {
         self.gradient.iter().map(|&(n, g)| dot(&g, &p[n as usize])).sum()
     }
 
-    /// The linearised volume at `x`.
-    fn volume_at(&self, x: &[Vec3]) -> f64 {
+    /// The linearised volume at node positions `x`.
+    #[must_use]
+    pub fn volume_at(&self, x: &[Vec3]) -> f64 {
         self.volume
             + self
                 .gradient

@@ -11,7 +11,7 @@
 
 mod tools;
 
-pub use tools::{Cutting, ShapeSpec, ToolSpec};
+pub use tools::{Cutting, ShapeSpec, ToolContact, ToolSpec};
 
 use incise_fem::forcefield::tet::Elasticity;
 use incise_fem::ode::{LinearSolver, MassMatrix, Rayleigh};

@@ -3,7 +3,8 @@
 //! ```toml
 //! [[tools]]
 //! name = "scalpel"
-//! stiffness = 400.0            # N/m per surface point in contact
+//! contact = "points"          # "points" (default) or "volume" (a mesh outer shape)
+//! stiffness = 400.0            # N/m per surface point in contact ("points" only)
 //! damping = 0.02               # N·s/m per point, along the normal (default: stiffness × dt, implicit)
 //! cutting = "remove"           # "off" (default), "remove" (voxels), "separate" (links)
 //! outer = { shape = "capsule", radius = 0.002, length = 0.05 }
@@ -39,7 +40,10 @@ pub struct ToolSpec {
     pub outer: ShapeSpec,
     /// The shape that cuts (`inner`), when the tool cuts.
     pub inner: Option<ShapeSpec>,
-    /// Penalty stiffness per surface point in contact (N/m, `stiffness`).
+    /// How its outer shape pushes the tissue (`contact`).
+    pub contact: ToolContact,
+    /// Penalty stiffness per surface point in contact (N/m, `stiffness`; required with
+    /// `contact = "points"`, 0 and unused with `"volume"`).
     pub stiffness: f64,
     /// Damping per surface point along the contact normal, on its velocity relative to the
     /// tool (N·s/m, `damping`). Without the key, `stiffness × dt` (the jaws' stiffness for a
@@ -54,6 +58,23 @@ pub struct ToolSpec {
     pub jaws: Option<Jaws>,
     /// Its scripted path (`[[tools.path]]`), when the scene drives it.
     pub path: Option<ToolPath>,
+}
+
+/// How a tool's outer shape pushes the tissue.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ToolContact {
+    /// A spring on each surface point inside the shape, along the shape's normal (`"points"`,
+    /// the default): any shape, with `stiffness` per point, swept so a fast tool does not
+    /// tunnel through the surface.
+    #[default]
+    Points,
+    /// The volume of the overlap of the tool's closed mesh with the organ's surface, pushed
+    /// apart with `[volume_contact]`'s pressure (its defaults without that table), as organs
+    /// are pushed from each other (`"volume"`; an `outer = { mesh = … }` shape). It pushes
+    /// with the whole overlap's stiffness at once, and sees a tool edge or corner that no
+    /// surface point lies inside; it has no swept test: a tool moving more than its own depth
+    /// in a step can pass through a thin layer.
+    Volume,
 }
 
 /// How a tool cuts.
@@ -94,7 +115,10 @@ pub(super) struct RawTool {
     outer: Spanned<RawShape>,
     #[serde(default)]
     inner: Option<Spanned<RawShape>>,
-    stiffness: Spanned<f64>,
+    #[serde(default)]
+    contact: Option<Spanned<String>>,
+    #[serde(default)]
+    stiffness: Option<Spanned<f64>>,
     #[serde(default)]
     damping: Option<Spanned<f64>>,
     #[serde(default)]
@@ -163,8 +187,39 @@ impl Checker<'_> {
                     format!("{name:?} names two tools; tool names must differ"),
                 ));
             }
-            let stiffness =
-                self.within(&raw_tool.stiffness, &at("stiffness"), (0.0, MAX_STIFFNESS), "N/m")?;
+            let contact = match raw_tool.contact.as_ref().map(|c| (c.span(), c.get_ref().as_str()))
+            {
+                None | Some((_, "points")) => ToolContact::Points,
+                Some((_, "volume")) => ToolContact::Volume,
+                Some((span, other)) => {
+                    return Err(self.invalid(
+                        span,
+                        &at("contact"),
+                        format!("is {other:?}; expected \"points\" or \"volume\""),
+                    ));
+                }
+            };
+            let stiffness = match (&raw_tool.stiffness, contact) {
+                (Some(s), ToolContact::Points) => {
+                    self.within(s, &at("stiffness"), (0.0, MAX_STIFFNESS), "N/m")?
+                }
+                (None, ToolContact::Points) => {
+                    return Err(self.invalid(
+                        t.span(),
+                        &at("stiffness"),
+                        "is missing: the penalty stiffness per surface point in contact (N/m)",
+                    ));
+                }
+                (Some(s), ToolContact::Volume) => {
+                    return Err(self.invalid(
+                        s.span(),
+                        &at("stiffness"),
+                        "is per surface point, for contact = \"points\"; a tool with contact = \
+                         \"volume\" pushes with [volume_contact] pressure",
+                    ));
+                }
+                (None, ToolContact::Volume) => 0.0,
+            };
             let damping = match raw_tool.damping.as_ref() {
                 Some(_) => {
                     Some(self.non_negative(raw_tool.damping.as_ref(), &at("damping"), 0.0)?)
@@ -172,6 +227,15 @@ impl Checker<'_> {
                 None => None,
             };
             let outer = self.shape(&raw_tool.outer, &at("outer"))?;
+            if contact == ToolContact::Volume && !matches!(outer, ShapeSpec::Mesh { .. }) {
+                let span = raw_tool.contact.as_ref().map_or(t.span(), Spanned::span);
+                return Err(self.invalid(
+                    span,
+                    &at("contact"),
+                    "\"volume\" measures the overlap of a closed surface: the outer shape must \
+                     be a mesh (outer = { mesh = \"…\" })",
+                ));
+            }
             let inner = raw_tool.inner.as_ref().map(|s| self.shape(s, &at("inner"))).transpose()?;
             let cutting = match raw_tool.cutting.as_ref().map(|c| (c.span(), c.get_ref().as_str()))
             {
@@ -220,7 +284,17 @@ impl Checker<'_> {
             let jaws = raw_tool.jaws.as_ref().map(|j| self.jaws(j, k)).transpose()?;
             let path =
                 if raw_tool.path.is_empty() { None } else { Some(self.path(&raw_tool.path, k)?) };
-            tools.push(ToolSpec { name, outer, inner, stiffness, damping, cutting, jaws, path });
+            tools.push(ToolSpec {
+                name,
+                outer,
+                inner,
+                contact,
+                stiffness,
+                damping,
+                cutting,
+                jaws,
+                path,
+            });
         }
         Ok(tools)
     }

@@ -15,11 +15,11 @@
 //! already buried below the organ's surface (drawn along a cut it made) keeps cutting.
 
 use super::surface::OrganSurface;
+use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_grid::BranchedGrid;
 use incise_grid::hex8::shape;
 use incise_math::Vec3;
 use incise_mesh::TetTopology;
-use incise_fem::forcefield::springs::EmbeddedPoint;
 use incise_tool::volume_contact::ContactDevice;
 use incise_tool::{Pose, Shape, SweptBlade, flood};
 
@@ -158,8 +158,10 @@ impl DeformedGrid<'_> {
             for &v in &voxels {
                 let c = self.centre_in(&frame, v);
                 if in_box(&c) {
-                    let embedding =
-                        || EmbeddedPoint { nodes: element.nodes, weights: self.weights_in(&frame, v) };
+                    let embedding = || EmbeddedPoint {
+                        nodes: element.nodes,
+                        weights: self.weights_in(&frame, v),
+                    };
                     f(v, c, &embedding);
                 }
             }
@@ -214,7 +216,7 @@ pub fn voxels_inside(
     let inside = |p: Vec3| inner.distance(pose.tool_from_grid(p)).0;
     let bounds = inner.grid_bounds(pose);
     let mut seeds = seeds(surface, positions, grid.voxel(), bounds, inside);
-    if let Some(held) = marker.and_then(|m| marked(m, inner, pose, grid, bounds)) {
+    if let Some(held) = marker.and_then(|mut m| marked(&mut m, inner, pose, grid, bounds)) {
         // Every voxel the shape holds has its centre in the shape's box, and so is a candidate
         // the device marked: a voxel it did not mark is not held.
         seeds.extend_from_slice(&held);
@@ -230,7 +232,7 @@ pub fn voxels_inside(
 /// The voxels in `bounds` the marker's device finds `inner` at `pose` holds, sorted; `None`
 /// when it does not mark this shape.
 fn marked(
-    marker: Marker,
+    marker: &mut Marker,
     inner: &Shape,
     pose: &Pose,
     grid: &DeformedGrid,
@@ -247,7 +249,8 @@ fn marked(
         let cpu = centres.iter().map(|&c| inner.distance(pose.tool_from_grid(c)).0 < 0.0);
         *marker.mismatches += cpu.zip(&marks).filter(|&(c, &m)| c != m).count();
     }
-    let mut held: Vec<u32> = voxels.into_iter().zip(marks).filter_map(|(v, m)| m.then_some(v)).collect();
+    let mut held: Vec<u32> =
+        voxels.into_iter().zip(marks).filter_map(|(v, m)| m.then_some(v)).collect();
     held.sort_unstable();
     Some(held)
 }

@@ -15,11 +15,12 @@ mod volume;
 
 pub use surface::OrganSurface;
 
+use volume::PosedMesh;
 pub(crate) use volume::VolumeContact;
 
 use super::keyframe::ToolState;
 use super::{CutError, InputError, Simulation, StageCounters, StepInputs};
-use crate::config::{Cutting, ShapeSpec, ToolSpec};
+use crate::config::{Cutting, ShapeSpec, ToolContact, ToolSpec};
 use cut::DeformedGrid;
 use incise_fem::Executor;
 use incise_fem::forcefield::springs::{EmbeddedSpring, EmbeddedSprings};
@@ -104,6 +105,9 @@ pub struct ToolFrame {
     pub swept_points: usize,
     /// Points its jaws hold.
     pub held_points: usize,
+    /// With `contact = "volume"`: the volume by which its mesh overlapped the tissue at the
+    /// step's start (m³); `contact_points` counts the surface vertices bounding that overlap.
+    pub overlap_volume: f64,
     /// What its jaws did.
     pub grasp: GraspEvent,
     /// The force and torque the tissue puts on it at the end of the step, and their derivative
@@ -170,6 +174,12 @@ pub(crate) struct ToolRig {
     /// The push directions of its last contact.
     memory: ContactMemory,
     grasp: Grasp,
+    /// With `contact = "volume"`: its outer mesh in the tool frame (vertices, outward
+    /// triangles), measured against the tissue by volume contact instead of point by point.
+    volume_mesh: Option<(Vec<Vec3>, Vec<[u32; 3]>)>,
+    /// Whether its mesh overlapped the tissue in the last step (what its jaws take as
+    /// touching).
+    overlapping: bool,
 }
 
 /// The tools, the volume contact, and the surface they act on.
@@ -230,8 +240,23 @@ impl Surgery {
         let rigs = tools
             .iter()
             .map(|t| {
+                let outer = shape(&t.outer, &t.name, "outer")?;
+                let volume_mesh = match t.contact {
+                    ToolContact::Points => None,
+                    ToolContact::Volume => {
+                        let Some((vertices, triangles)) = outer.closed_surface() else {
+                            return Err(format!(
+                                "tool {:?}: contact = \"volume\" needs a mesh outer shape",
+                                t.name
+                            ));
+                        };
+                        Some((vertices, triangles.to_vec()))
+                    }
+                };
                 Ok(ToolRig {
-                    outer: shape(&t.outer, &t.name, "outer")?,
+                    outer,
+                    volume_mesh,
+                    overlapping: false,
                     inner: t.inner.as_ref().map(|s| shape(s, &t.name, "inner")).transpose()?,
                     spec: t.clone(),
                     pose: None,
@@ -360,6 +385,7 @@ impl Simulation {
                 contact_points: 0,
                 swept_points: 0,
                 held_points: 0,
+                overlap_volume: 0.0,
                 grasp: GraspEvent::None,
                 linearisation: Linearisation::none(
                     rig.pose.map_or([0.0; 3], |p| p.pose.position()),
@@ -379,7 +405,7 @@ impl Simulation {
         let Surgery { rigs, surface, positions, .. } = &mut *surgery;
         for (i, rig) in rigs.iter_mut().enumerate() {
             let (Some(pose), Some(jaws)) = (rig.pose, rig.spec.jaws) else { continue };
-            let touching = !contacts[i].points.is_empty();
+            let touching = !contacts[i].points.is_empty() || rig.overlapping;
             let points = surface.live_vertices().iter().map(|&v| (v, positions[v as usize]));
             frame.tools[i].grasp =
                 rig.grasp.update(&jaws, &pose.pose, pose.gripper, touching, points);
@@ -440,6 +466,32 @@ impl Simulation {
         }
     }
 
+    /// After the mechanics: each tool mesh's part of the volume contact `field` (the penalty
+    /// of its overlaps at the new positions, and its derivative in the pose) added to its
+    /// frame.
+    pub(super) fn finish_volume_tools(&self, field: &VolumePenalty, frame: &mut SurgicalFrame) {
+        let Some(volume) = self.surgery.as_ref().and_then(|s| s.volume.as_ref()) else { return };
+        for o in volume.tool_overlaps() {
+            let (Some(tool), Some(region)) =
+                (frame.tools.get_mut(o.tool), field.regions().get(o.region))
+            else {
+                continue;
+            };
+            let Some(pose) = tool.pose else { continue };
+            let volume = region.volume_at(&self.state.x);
+            let origin = pose.pose.position();
+            let lin = Linearisation::of_overlap(
+                origin,
+                region.stiffness(),
+                volume,
+                o.gradients.iter().copied(),
+            );
+            tool.linearisation.add(&lin);
+            tool.overlap_volume += o.volume;
+            tool.contact_points += o.surface_points;
+        }
+    }
+
     /// The surface's deformed positions from the state.
     fn deform_surface(&self, surgery: &mut Surgery) {
         let Surgery { surface, positions, deformed_at, .. } = surgery;
@@ -462,10 +514,24 @@ impl Simulation {
                 counters.surface_ns += elapsed(t);
             }
             let t = Instant::now();
-            let Surgery { surface, positions, volume, .. } = &mut *surgery;
+            let Surgery { surface, positions, volume, rigs, .. } = &mut *surgery;
+            let meshes: Vec<PosedMesh> = rigs
+                .iter()
+                .enumerate()
+                .filter_map(|(tool, rig)| {
+                    let ((vertices, triangles), pose) = (rig.volume_mesh.as_ref()?, rig.pose?);
+                    let positions = vertices.iter().map(|&p| pose.pose.grid_from_tool(p)).collect();
+                    Some(PosedMesh { tool, positions, triangles })
+                })
+                .collect();
             let (x, model) = (&self.state.x, self.model());
             let diff = &mut counters.gpu_cpu_volume_diff;
-            let step = volume.as_mut().and_then(|v| v.step(surface, positions, x, model, diff));
+            let step =
+                volume.as_mut().and_then(|v| v.step(surface, positions, x, model, &meshes, diff));
+            let overlaps = volume.as_ref().map_or(&[][..], |v| v.tool_overlaps());
+            for (i, rig) in rigs.iter_mut().enumerate() {
+                rig.overlapping = overlaps.iter().any(|o| o.tool == i);
+            }
             counters.volume_contact_ns = elapsed(t);
             if let Some(s) = &step {
                 counters.overlap_regions = s.regions().len();
@@ -485,7 +551,9 @@ impl Simulation {
         let live = surface.live_vertices();
         rigs.iter()
             .map(|rig| {
-                let Some(pose) = rig.pose else { return Contact::default() };
+                let Some(pose) = rig.pose.filter(|_| rig.volume_mesh.is_none()) else {
+                    return Contact::default();
+                };
                 let previous = rig.previous.as_ref().map(|p| (p, dt));
                 detect(
                     &rig.outer,
@@ -522,8 +590,9 @@ impl Simulation {
                 (Cutting::Remove, Some(grid), Some(by_grid_node)) => {
                     let deformed = DeformedGrid { grid, by_grid_node };
                     let marker = volume.as_mut().and_then(|v| v.marker(&mut mismatches));
-                    let voxels =
-                        cut::voxels_inside(inner, &pose.pose, &deformed, surface, positions, marker);
+                    let voxels = cut::voxels_inside(
+                        inner, &pose.pose, &deformed, surface, positions, marker,
+                    );
                     event.voxels_removed = voxels.len();
                     edit.remove_voxels.extend(voxels);
                 }

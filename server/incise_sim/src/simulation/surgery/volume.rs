@@ -55,6 +55,8 @@ pub(crate) struct VolumeContact {
     groups: Option<Vec<Group>>,
     /// What the CPU passes reuse from step to step.
     passes: Passes,
+    /// The tool meshes' overlaps in the last step's field.
+    tool_overlaps: Vec<ToolOverlap>,
 }
 
 impl VolumeContact {
@@ -86,7 +88,13 @@ impl VolumeContact {
             check: false,
             groups: None,
             passes: Passes::default(),
+            tool_overlaps: Vec::new(),
         })
+    }
+
+    /// The tool meshes' overlaps in the last step's field.
+    pub(crate) fn tool_overlaps(&self) -> &[ToolOverlap] {
+        &self.tool_overlaps
     }
 
     /// Runs the passes on `device` from the next step on.
@@ -139,11 +147,14 @@ impl VolumeContact {
         positions: &[Vec3],
         x: &[Vec3],
         model: Option<&HexModel>,
+        tools: &[PosedMesh],
         diff: &mut f64,
     ) -> Option<VolumePenalty> {
+        self.tool_overlaps.clear();
         let cut_regions =
             if self.spec.self_contact { self.cut_regions(surface, positions) } else { Vec::new() };
-        let Self { spec, pairs, device, stale, check, groups, passes: cpu, .. } = self;
+        let Self { spec, pairs, device, stale, check, groups, passes: cpu, tool_overlaps, .. } =
+            self;
         let groups = groups.get_or_insert_with(|| {
             surface.triangles_by_group().into_iter().map(Group::new).collect()
         });
@@ -205,14 +216,51 @@ impl VolumeContact {
             };
             found.extend(regions_of(intervals, region, resolution));
         }
-        let regions: Vec<OverlapRegion> = found
+        let mut regions: Vec<OverlapRegion> = found
             .iter()
             .filter_map(|o| {
                 let gradients = o.gradient_a.iter().chain(&o.gradient_b);
                 let embedded = gradients.map(|&(v, g)| (surface.embedding(v), g));
-                OverlapRegion::new(o.volume, embedded, self.spec.pressure, x)
+                OverlapRegion::new(o.volume, embedded, spec.pressure, x)
             })
             .collect();
+        // A tool's mesh against every tissue's surface, on the CPU (the device holds only the
+        // organ's surface). The tool is posed from outside: its side of each overlap moves no
+        // node, and its gradient becomes the tool's force after the solve.
+        for tool in tools {
+            let Some(tool_box) = tool.bounds() else { continue };
+            let mesh = TriangleSurface { positions: &tool.positions, triangles: tool.triangles };
+            for g in 0..groups.len() as u16 {
+                let Some(group_box) = bounds(g) else { continue };
+                let lo: Vec3 = std::array::from_fn(|k| tool_box.0[k].max(group_box.0[k]));
+                let hi: Vec3 = std::array::from_fn(|k| tool_box.1[k].min(group_box.1[k]));
+                if !(0..3).all(|k| lo[k] < hi[k]) {
+                    continue;
+                }
+                cpu.overlap_intervals(&side(g), &mesh, (lo, hi), resolution, &mut on_cpu);
+                for o in regions_of(&on_cpu, (lo, hi), resolution) {
+                    let embedded = o.gradient_a.iter().map(|&(v, g)| (surface.embedding(v), g));
+                    let fixed = o.gradient_b.iter().map(|&(_, g)| g);
+                    let Some(r) =
+                        OverlapRegion::against(o.volume, embedded, fixed, spec.pressure, x)
+                    else {
+                        continue;
+                    };
+                    tool_overlaps.push(ToolOverlap {
+                        tool: tool.tool,
+                        region: regions.len(),
+                        volume: o.volume,
+                        gradients: o
+                            .gradient_b
+                            .iter()
+                            .map(|&(v, g)| (tool.positions[v as usize], g))
+                            .collect(),
+                        surface_points: o.gradient_a.len(),
+                    });
+                    regions.push(r);
+                }
+            }
+        }
         if regions.is_empty() {
             return None;
         }
@@ -244,6 +292,40 @@ impl VolumeContact {
         }
         boxes
     }
+}
+
+/// A tool's closed mesh at its pose this step, for volume contact with the tissue.
+pub(crate) struct PosedMesh<'a> {
+    /// The tool's index in the scene.
+    pub(crate) tool: usize,
+    /// Its vertices in the grid frame (m).
+    pub(crate) positions: Vec<Vec3>,
+    /// Its outward triangles.
+    pub(crate) triangles: &'a [[u32; 3]],
+}
+
+impl PosedMesh<'_> {
+    fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        let mut points = self.positions.iter();
+        let first = *points.next()?;
+        Some(points.fold((first, first), |(lo, hi), p| {
+            (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
+        }))
+    }
+}
+
+/// A tool mesh's overlap with the tissue in a step's penalty field.
+pub(crate) struct ToolOverlap {
+    /// The tool's index in the scene.
+    pub(crate) tool: usize,
+    /// The overlap's index in the field's regions.
+    pub(crate) region: usize,
+    /// Its volume where it was measured (m³).
+    pub(crate) volume: f64,
+    /// Each tool vertex bounding it: its position (m) and the volume's gradient there (m²).
+    pub(crate) gradients: Vec<(Vec3, Vec3)>,
+    /// The tissue's surface vertices bounding it.
+    pub(crate) surface_points: usize,
 }
 
 /// One surface group's live triangles and the vertices they use.

@@ -177,9 +177,6 @@ pub(crate) struct ToolRig {
     /// With `contact = "volume"`: its outer mesh in the tool frame (vertices, outward
     /// triangles), measured against the tissue by volume contact instead of point by point.
     volume_mesh: Option<(Vec<Vec3>, Vec<[u32; 3]>)>,
-    /// Whether its mesh overlapped the tissue in the last step (what its jaws take as
-    /// touching).
-    overlapping: bool,
 }
 
 /// The tools, the volume contact, and the surface they act on.
@@ -256,7 +253,6 @@ impl Surgery {
                 Ok(ToolRig {
                     outer,
                     volume_mesh,
-                    overlapping: false,
                     inner: t.inner.as_ref().map(|s| shape(s, &t.name, "inner")).transpose()?,
                     spec: t.clone(),
                     pose: None,
@@ -405,7 +401,12 @@ impl Simulation {
         let Surgery { rigs, surface, positions, .. } = &mut *surgery;
         for (i, rig) in rigs.iter_mut().enumerate() {
             let (Some(pose), Some(jaws)) = (rig.pose, rig.spec.jaws) else { continue };
-            let touching = !contacts[i].points.is_empty() || rig.overlapping;
+            // A tool pushing by volume has no contact points: it touches where a surface point
+            // lies inside its mesh (from this step's positions alone, so that a keyframe
+            // restores what its jaws do).
+            let touching = !contacts[i].points.is_empty()
+                || (rig.volume_mesh.is_some()
+                    && holds_a_point(&rig.outer, &pose.pose, surface, positions));
             let points = surface.live_vertices().iter().map(|&v| (v, positions[v as usize]));
             frame.tools[i].grasp =
                 rig.grasp.update(&jaws, &pose.pose, pose.gripper, touching, points);
@@ -528,10 +529,6 @@ impl Simulation {
             let diff = &mut counters.gpu_cpu_volume_diff;
             let step =
                 volume.as_mut().and_then(|v| v.step(surface, positions, x, model, &meshes, diff));
-            let overlaps = volume.as_ref().map_or(&[][..], |v| v.tool_overlaps());
-            for (i, rig) in rigs.iter_mut().enumerate() {
-                rig.overlapping = overlaps.iter().any(|o| o.tool == i);
-            }
             counters.volume_contact_ns = elapsed(t);
             if let Some(s) = &step {
                 counters.overlap_regions = s.regions().len();
@@ -776,6 +773,16 @@ impl Simulation {
         }
         out
     }
+}
+
+/// Whether a live vertex of `surface` at `positions` lies inside `shape` at `pose`.
+fn holds_a_point(shape: &Shape, pose: &Pose, surface: &OrganSurface, positions: &[Vec3]) -> bool {
+    let (lo, hi) = shape.grid_bounds(pose);
+    surface.live_vertices().iter().any(|&v| {
+        let p = positions[v as usize];
+        (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k])
+            && shape.distance(pose.tool_from_grid(p)).0 < 0.0
+    })
 }
 
 /// The voxels an edit touches: those removed and both ends of the links severed, sorted.

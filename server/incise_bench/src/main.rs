@@ -33,6 +33,10 @@ enum Command {
     /// pull), C (cantilever) and the liver, for each model, integrator and dt in {1 ms, 10 ms};
     /// table, CSV, JSON and a log-log PNG.
     SpeedError(speed_error::SpeedErrorArgs),
+    /// The liver's accuracy reference: the 13,648-voxel liver at level 0 against the
+    /// 109,201-voxel liver at level 0 (static, hanging), compared at the coarse voxels'
+    /// centres: centre-of-mass, largest and RMS displacement, and the fields' RMS difference.
+    Reference(speed_error::reference::ReferenceArgs),
     /// Paper 2's Table 1 (volume change of a bent cylinder and a pulled liver for the linear,
     /// St Venant-Kirchhoff and SVK + incompressibility tensor-mass models, and corotational
     /// hexahedra), explicit speed per model, and adaptive non-linearity against full SVK.
@@ -76,6 +80,7 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Grid(args) => grid_report::run(&args),
         Command::SpeedError(args) => speed_error::run(&args),
+        Command::Reference(args) => speed_error::reference::run(&args),
         Command::TensorMass(args) => tensor_mass::run(&args),
         Command::Coexist(args) => coexist::run(&args),
         Command::Frame(args) => frame::run(&args),

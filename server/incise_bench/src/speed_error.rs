@@ -33,9 +33,10 @@ use incise_sim::config::{DEFAULT_CG_TOLERANCE, Level, Model, VolumeSpec};
 use incise_sim::{SceneConfig, Simulation};
 use serde::Serialize;
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 mod moving;
+pub mod reference;
 
 /// Arguments of `incise-bench speed-error`.
 #[derive(clap::Args, Debug)]
@@ -239,12 +240,12 @@ struct Case {
 /// `voxels` per axis (a procedural block) when given instead of the file's own; also returns the
 /// volume as read.
 fn load_scene(
-    args: &SpeedErrorArgs,
+    scene_dir: &Path,
     file: &str,
     level: Option<u32>,
     voxels: Option<[usize; 3]>,
 ) -> anyhow::Result<(SceneConfig, Simulation, incise_grid::LabelVolume)> {
-    let path = args.scene_dir.join(file);
+    let path = scene_dir.join(file);
     let incise_scene::Scene { mut config, geometry, .. } = incise_scene::read_scene(&path)
         .with_context(|| format!("reading scene {} (see --scene-dir)", path.display()))?;
     let Some(mut volume) = geometry.volume().cloned() else {
@@ -313,7 +314,7 @@ fn block_case(
     file: &str,
     voxels: Option<[usize; 3]>,
 ) -> anyhow::Result<Case> {
-    let (config, simulation, _) = load_scene(args, file, None, voxels)?;
+    let (config, simulation, _) = load_scene(&args.scene_dir, file, None, voxels)?;
     let Some(patch) = config.loads.first() else { bail!("{file}: scene B pulls a patch") };
     let rest = &simulation.model().expect("a hexahedral scene").rest;
     let dist = |n: usize| (0..3).map(|a| (rest[n][a] - patch.centre[a]).powi(2)).sum::<f64>();
@@ -339,7 +340,7 @@ fn block_case(
 /// reference Euler–Bernoulli's `q L⁴ / (8 E I)` from the file's size, material and gravity.
 fn cantilever_case(args: &SpeedErrorArgs, n: usize) -> anyhow::Result<Case> {
     let file = format!("c_{n}x{}x{}.toml", n / 10, n / 10);
-    let (config, simulation, _) = load_scene(args, &file, None, None)?;
+    let (config, simulation, _) = load_scene(&args.scene_dir, &file, None, None)?;
     let Some(&VolumeSpec::Block { size_m: [l, w, h], .. }) = config.volume() else {
         bail!("{file}: scene C is a procedural block")
     };
@@ -391,10 +392,10 @@ fn liver_case(
 /// shared nodes at level 0) to a held node, with the scene's stride; the scene's volume is
 /// rewritten to take that volume as it is.
 fn supported_volume(
-    args: &SpeedErrorArgs,
+    scene_dir: &Path,
     file: &str,
 ) -> anyhow::Result<(SceneConfig, incise_grid::LabelVolume, [usize; 3])> {
-    let (mut config, simulation, raw) = load_scene(args, file, Some(0), None)?;
+    let (mut config, simulation, raw) = load_scene(scene_dir, file, Some(0), None)?;
     let (Some(grid), Some(model)) = (simulation.grid(), simulation.model()) else {
         bail!("{file}: the report measures hexahedral scenes")
     };
@@ -478,6 +479,11 @@ fn measured(case: &Case, x: &[Vec3]) -> f64 {
 /// Newton from rest does not converge (a large, soft deformation), the load is applied in ten
 /// increments, each solve starting from the last.
 fn static_answer(case: &Case, formulation: Formulation, cholesky: bool) -> Option<f64> {
+    static_positions(case, formulation, cholesky).map(|x| measured(case, &x))
+}
+
+/// The node positions of [`static_answer`]'s solve (`None` when Newton did not converge).
+fn static_positions(case: &Case, formulation: Formulation, cholesky: bool) -> Option<Vec<Vec3>> {
     let mut ff = HexForceField::new(&case.model, formulation);
     let (model, fixed) = (&case.model, &case.fixed);
     for increments in [1u32, 10] {
@@ -499,7 +505,7 @@ fn static_answer(case: &Case, formulation: Formulation, cholesky: bool) -> Optio
             }
         }
         if converged {
-            return Some(measured(case, &x));
+            return Some(x);
         }
     }
     None
@@ -882,12 +888,12 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 }
             }
             "liver" => {
-                let small = supported_volume(args, "liver_13k.toml")?;
+                let small = supported_volume(&args.scene_dir, "liver_13k.toml")?;
                 for &level in &args.liver_levels {
                     cases.push(liver_case("liver-13k", &small, level)?);
                 }
                 liver_13k = Some(small);
-                let large = supported_volume(args, "liver_109k.toml")?;
+                let large = supported_volume(&args.scene_dir, "liver_109k.toml")?;
                 cases.push(liver_case("liver-109k", &large, 3)?);
                 liver_109k = Some(large);
             }

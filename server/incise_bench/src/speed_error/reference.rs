@@ -1,0 +1,255 @@
+//! `incise-bench reference`: how far the 13,648-voxel liver's finest model is from the finest
+//! model affordable, the 109,201-voxel liver (the same CT at twice the resolution per axis),
+//! both at level 0 and solved statically hanging from their hold under gravity.
+//!
+//! The two are compared on the same physical points: the centres of the coarse liver's voxels.
+//! The coarse voxel `i` covers the fine voxels `2i` and `2i + 1` along each axis (both grids are
+//! the CT cropped to the same corner, strided by 8, 8, 4 and 4, 4, 2), so its centre is a node
+//! of the fine grid, where the fine model's displacement is exact; the coarse model's there is
+//! its voxel's trilinear interpolation at the centre (the mean of its eight nodes). A coarse
+//! voxel with no fine node at its centre (the strided labels differ at the organ's boundary)
+//! is left out and counted.
+//!
+//! Over the points, each weighted alike: the centre of mass's displacement, the largest and the
+//! RMS displacement, each with the coarse model's signed error `(coarse − fine) / fine`, and the
+//! RMS of the difference of the two fields relative to the fine field's RMS.
+
+use super::{Case, liver_case, static_positions, supported_volume};
+use anyhow::{Context, bail};
+use incise_fem::Formulation;
+use incise_math::Vec3;
+use serde::Serialize;
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `incise-bench reference`.
+#[derive(clap::Args, Debug)]
+pub struct ReferenceArgs {
+    /// Folder of the scene files (`liver_13k.toml`, `liver_109k.toml`).
+    #[arg(long, value_name = "DIR", default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/scenes"))]
+    scene_dir: PathBuf,
+    /// Models to solve, comma-separated: `corotational` (the fine one takes about 5 minutes on
+    /// a 2-core machine), `linear` (about 40 s).
+    #[arg(long, value_delimiter = ',', default_value = "corotational,linear")]
+    models: Vec<String>,
+    /// End with one line holding one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// The displacement measures over the compared points (m).
+#[derive(Clone, Copy, Debug, Serialize)]
+struct Measures {
+    centre_of_mass: f64,
+    max: f64,
+    rms: f64,
+}
+
+/// One model's comparison.
+#[derive(Debug, Serialize)]
+struct Comparison {
+    model: &'static str,
+    /// Coarse voxels compared, and those with no fine node at their centre.
+    points: usize,
+    unmatched: usize,
+    /// The 109,201-voxel liver (the reference) and the 13,648-voxel one, at level 0.
+    fine: Measures,
+    coarse: Measures,
+    /// `(coarse − fine) / fine` for each measure.
+    error_signed: Measures,
+    /// `RMS |u_coarse − u_fine| / RMS |u_fine|` over the points.
+    field_rms_error: f64,
+    /// Seconds the static solves took.
+    fine_solve_s: f64,
+    coarse_solve_s: f64,
+}
+
+/// Runs the comparison.
+pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
+    let mut formulations = Vec::new();
+    for m in &args.models {
+        formulations.push(match m.as_str() {
+            "corotational" => (Formulation::Corotational, "corotational"),
+            "linear" => (Formulation::Linear, "linear"),
+            other => bail!("--models: unknown model {other:?}; expected corotational or linear"),
+        });
+    }
+    let small = supported_volume(&args.scene_dir, "liver_13k.toml")?;
+    let large = supported_volume(&args.scene_dir, "liver_109k.toml")?;
+    let coarse = liver_case("liver-13k", &small, 0)?;
+    let fine = liver_case("liver-109k", &large, 0)?;
+    let matching = Matching::new(&coarse, &small.1, &fine, &large.1)?;
+    let mut rows = Vec::new();
+    for (formulation, name) in formulations {
+        let solve = |case: &Case, what: &str| -> anyhow::Result<(Vec<Vec3>, f64)> {
+            eprintln!(
+                "{name}: solving {what} at level 0 ({} nodes) statically …",
+                case.model.node_count()
+            );
+            let start = Instant::now();
+            let x = static_positions(case, formulation, false)
+                .with_context(|| format!("{name}: the static solve of {what} did not converge"))?;
+            let s = start.elapsed().as_secs_f64();
+            eprintln!("  {s:.1} s");
+            Ok((x, s))
+        };
+        let (xc, coarse_solve_s) = solve(&coarse, "the 13,648-voxel liver")?;
+        let (xf, fine_solve_s) = solve(&fine, "the 109,201-voxel liver")?;
+        rows.push(matching.compare(name, &coarse, &xc, &fine, &xf, coarse_solve_s, fine_solve_s));
+    }
+    print(&rows);
+    if args.json {
+        println!("{}", serde_json::json!({ "scene": "liver", "models": rows }));
+    }
+    Ok(())
+}
+
+/// Which fine node lies at each coarse voxel's centre.
+struct Matching {
+    /// Per coarse element (a voxel at level 0): the fine nodes at its centre (empty: none).
+    nodes: Vec<Vec<u32>>,
+}
+
+impl Matching {
+    fn new(
+        coarse: &Case,
+        coarse_volume: &incise_grid::LabelVolume,
+        fine: &Case,
+        fine_volume: &incise_grid::LabelVolume,
+    ) -> anyhow::Result<Self> {
+        let h = fine_volume.spacing();
+        let (Some((coarse_lo, _)), Some((fine_lo, _))) =
+            (coarse_volume.foreground_bounds(), fine_volume.foreground_bounds())
+        else {
+            bail!("an empty liver");
+        };
+        // Each grid frame starts at its own volume's foreground corner.
+        let shift: Vec3 = std::array::from_fn(|a| {
+            coarse_lo[a] as f64 * coarse_volume.spacing()[a] - fine_lo[a] as f64 * h[a]
+        });
+        let key = |p: Vec3| -> [i64; 3] { std::array::from_fn(|a| (p[a] / h[a]).round() as i64) };
+        let mut at: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        for (n, &p) in fine.model.rest.iter().enumerate() {
+            at.entry(key(p)).or_default().push(n as u32);
+        }
+        let rest = &coarse.model.rest;
+        let nodes = coarse
+            .model
+            .elements
+            .iter()
+            .map(|e| {
+                let c: Vec3 = std::array::from_fn(|a| {
+                    e.nodes.iter().map(|&n| rest[n as usize][a]).sum::<f64>() / 8.0 + shift[a]
+                });
+                let k = key(c);
+                // A centre between fine nodes would be a misaligned grid, not a missing node.
+                let off = (0..3).map(|a| (c[a] / h[a] - k[a] as f64).abs()).fold(0.0, f64::max);
+                if off > 1e-6 {
+                    return Err(off);
+                }
+                Ok(at.get(&k).cloned().unwrap_or_default())
+            })
+            .collect::<Result<Vec<_>, f64>>()
+            .map_err(|off| {
+                anyhow::anyhow!(
+                    "a coarse voxel's centre lies {off:.3} fine voxels off the fine grid's nodes: \
+                     the two livers' grids do not nest"
+                )
+            })?;
+        Ok(Self { nodes })
+    }
+
+    #[allow(clippy::too_many_arguments, reason = "both models, both solutions and their times")]
+    fn compare(
+        &self,
+        model: &'static str,
+        coarse: &Case,
+        xc: &[Vec3],
+        fine: &Case,
+        xf: &[Vec3],
+        coarse_solve_s: f64,
+        fine_solve_s: f64,
+    ) -> Comparison {
+        let displacement = |rest: &[Vec3], x: &[Vec3], n: u32| -> Vec3 {
+            std::array::from_fn(|a| x[n as usize][a] - rest[n as usize][a])
+        };
+        let (mut uc, mut uf) = (Vec::new(), Vec::new());
+        for (e, nodes) in coarse.model.elements.iter().zip(&self.nodes) {
+            if nodes.is_empty() {
+                continue;
+            }
+            let mean = |ns: &mut dyn Iterator<Item = u32>, rest: &[Vec3], x: &[Vec3]| -> Vec3 {
+                let (mut sum, mut count) = ([0.0; 3], 0.0);
+                for n in ns {
+                    let d = displacement(rest, x, n);
+                    for a in 0..3 {
+                        sum[a] += d[a];
+                    }
+                    count += 1.0;
+                }
+                sum.map(|s| s / count)
+            };
+            uc.push(mean(&mut e.nodes.iter().copied(), &coarse.model.rest, xc));
+            uf.push(mean(&mut nodes.iter().copied(), &fine.model.rest, xf));
+        }
+        let norm = |u: &Vec3| (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+        let measures = |u: &[Vec3]| {
+            let count = u.len().max(1) as f64;
+            let com: Vec3 = std::array::from_fn(|a| u.iter().map(|v| v[a]).sum::<f64>() / count);
+            Measures {
+                centre_of_mass: norm(&com),
+                max: u.iter().map(norm).fold(0.0, f64::max),
+                rms: (u.iter().map(|v| norm(v).powi(2)).sum::<f64>() / count).sqrt(),
+            }
+        };
+        let (c, f) = (measures(&uc), measures(&uf));
+        let rel = |c: f64, f: f64| (c - f) / f;
+        let difference: Vec<Vec3> =
+            uc.iter().zip(&uf).map(|(a, b)| std::array::from_fn(|k| a[k] - b[k])).collect();
+        Comparison {
+            model,
+            points: uc.len(),
+            unmatched: self.nodes.len() - uc.len(),
+            fine: f,
+            coarse: c,
+            error_signed: Measures {
+                centre_of_mass: rel(c.centre_of_mass, f.centre_of_mass),
+                max: rel(c.max, f.max),
+                rms: rel(c.rms, f.rms),
+            },
+            field_rms_error: measures(&difference).rms / f.rms,
+            fine_solve_s,
+            coarse_solve_s,
+        }
+    }
+}
+
+fn print(rows: &[Comparison]) {
+    println!();
+    println!("the 13,648-voxel liver at level 0 against the 109,201-voxel liver at level 0");
+    println!("(static, hanging under gravity; displacements at the coarse voxels' centres)");
+    println!(
+        "{:<13} {:>7} {:>14} {:>14} {:>14} {:>12}",
+        "model", "points", "com mm", "max mm", "rms mm", "field rms"
+    );
+    for r in rows {
+        let cell =
+            |c: f64, f: f64, e: f64| format!("{:.2}/{:.2} {:+.1}%", c * 1e3, f * 1e3, e * 1e2);
+        println!(
+            "{:<13} {:>7} {:>14} {:>14} {:>14} {:>11.1}%",
+            r.model,
+            r.points,
+            cell(r.coarse.centre_of_mass, r.fine.centre_of_mass, r.error_signed.centre_of_mass),
+            cell(r.coarse.max, r.fine.max, r.error_signed.max),
+            cell(r.coarse.rms, r.fine.rms, r.error_signed.rms),
+            r.field_rms_error * 1e2
+        );
+        println!(
+            "{:<13} {} coarse voxels with no fine node at their centre; solves {:.1} s (coarse), \
+             {:.1} s (fine)",
+            "", r.unmatched, r.coarse_solve_s, r.fine_solve_s
+        );
+    }
+    println!("cells: coarse/fine and the coarse model's signed error");
+}

@@ -171,27 +171,13 @@ impl Matching {
         coarse_solve_s: f64,
         fine_solve_s: f64,
     ) -> Comparison {
-        let displacement = |rest: &[Vec3], x: &[Vec3], n: u32| -> Vec3 {
-            std::array::from_fn(|a| x[n as usize][a] - rest[n as usize][a])
-        };
         let (mut uc, mut uf) = (Vec::new(), Vec::new());
         for (e, nodes) in coarse.model.elements.iter().zip(&self.nodes) {
             if nodes.is_empty() {
                 continue;
             }
-            let mean = |ns: &mut dyn Iterator<Item = u32>, rest: &[Vec3], x: &[Vec3]| -> Vec3 {
-                let (mut sum, mut count) = ([0.0; 3], 0.0);
-                for n in ns {
-                    let d = displacement(rest, x, n);
-                    for a in 0..3 {
-                        sum[a] += d[a];
-                    }
-                    count += 1.0;
-                }
-                sum.map(|s| s / count)
-            };
-            uc.push(mean(&mut e.nodes.iter().copied(), &coarse.model.rest, xc));
-            uf.push(mean(&mut nodes.iter().copied(), &fine.model.rest, xf));
+            uc.push(mean_displacement(&e.nodes, &coarse.model.rest, xc));
+            uf.push(mean_displacement(nodes, &fine.model.rest, xf));
         }
         let norm = |u: &Vec3| (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
         let measures = |u: &[Vec3]| {
@@ -223,6 +209,14 @@ impl Matching {
             coarse_solve_s,
         }
     }
+}
+
+/// The mean displacement of `nodes` (not empty) at positions `x` from `rest`.
+fn mean_displacement(nodes: &[u32], rest: &[Vec3], x: &[Vec3]) -> Vec3 {
+    let count = nodes.len() as f64;
+    std::array::from_fn(|a| {
+        nodes.iter().map(|&n| x[n as usize][a] - rest[n as usize][a]).sum::<f64>() / count
+    })
 }
 
 fn print(rows: &[Comparison]) {

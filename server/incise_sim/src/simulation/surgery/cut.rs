@@ -238,10 +238,13 @@ fn marked(
     grid: &DeformedGrid,
     bounds: (Vec3, Vec3),
 ) -> Option<Vec<u32>> {
+    // The centres are kept only for the check: the device tests its own, in f32.
     let (mut voxels, mut centres, mut embeddings) = (Vec::new(), Vec::new(), Vec::new());
     grid.each_near(bounds, 0.0, |v, c, embedding| {
         voxels.push(v);
-        centres.push(c);
+        if marker.check {
+            centres.push(c);
+        }
         embeddings.push(embedding());
     });
     let marks = marker.device.cut_marks(inner, pose, grid.by_grid_node, &embeddings)?;

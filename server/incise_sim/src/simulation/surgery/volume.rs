@@ -139,8 +139,9 @@ impl VolumeContact {
 
     /// The overlaps of `surface` at vertex positions `positions` (per slot), as a penalty field
     /// linearised at node positions `x` (of `model`, for a voxel surface); `None` when nothing
-    /// overlaps. With a check, `diff` gets the largest relative difference between a device
-    /// pass's volume and the CPU's.
+    /// overlaps; the posed `tools` meshes' overlaps with every tissue join the field, and are
+    /// kept for [`Self::tool_overlaps`]. With a check, `diff` gets the largest relative
+    /// difference between a device pass's volume and the CPU's.
     pub(crate) fn step(
         &mut self,
         surface: &OrganSurface,
@@ -172,13 +173,8 @@ impl VolumeContact {
         let bounds = |g: u16| groups.get(usize::from(g)).and_then(|g| g.bounds(positions));
         let mut passes: Vec<(u16, Option<u16>, (Vec3, Vec3))> = Vec::new();
         for &[a, b] in pairs.iter() {
-            let (Some((alo, ahi)), Some((blo, bhi))) = (bounds(a), bounds(b)) else {
-                continue;
-            };
-            let lo: Vec3 = std::array::from_fn(|k| alo[k].max(blo[k]));
-            let hi: Vec3 = std::array::from_fn(|k| ahi[k].min(bhi[k]));
-            if (0..3).all(|k| lo[k] < hi[k]) {
-                passes.push((a, Some(b), (lo, hi)));
+            if let Some(region) = bounds(a).zip(bounds(b)).and_then(|(a, b)| common(a, b)) {
+                passes.push((a, Some(b), region));
             }
         }
         for (g, region) in cut_regions {
@@ -228,17 +224,12 @@ impl VolumeContact {
         // organ's surface). The tool is posed from outside: its side of each overlap moves no
         // node, and its gradient becomes the tool's force after the solve.
         for tool in tools {
-            let Some(tool_box) = tool.bounds() else { continue };
+            let Some(tool_box) = box_of(tool.positions.iter().copied()) else { continue };
             let mesh = TriangleSurface { positions: &tool.positions, triangles: tool.triangles };
             for g in 0..groups.len() as u16 {
-                let Some(group_box) = bounds(g) else { continue };
-                let lo: Vec3 = std::array::from_fn(|k| tool_box.0[k].max(group_box.0[k]));
-                let hi: Vec3 = std::array::from_fn(|k| tool_box.1[k].min(group_box.1[k]));
-                if !(0..3).all(|k| lo[k] < hi[k]) {
-                    continue;
-                }
-                cpu.overlap_intervals(&side(g), &mesh, (lo, hi), resolution, &mut on_cpu);
-                for o in regions_of(&on_cpu, (lo, hi), resolution) {
+                let Some(region) = bounds(g).and_then(|b| common(tool_box, b)) else { continue };
+                cpu.overlap_intervals(&side(g), &mesh, region, resolution, &mut on_cpu);
+                for o in regions_of(&on_cpu, region, resolution) {
                     let embedded = o.gradient_a.iter().map(|&(v, g)| (surface.embedding(v), g));
                     let fixed = o.gradient_b.iter().map(|&(_, g)| g);
                     let Some(r) =
@@ -304,16 +295,6 @@ pub(crate) struct PosedMesh<'a> {
     pub(crate) triangles: &'a [[u32; 3]],
 }
 
-impl PosedMesh<'_> {
-    fn bounds(&self) -> Option<(Vec3, Vec3)> {
-        let mut points = self.positions.iter();
-        let first = *points.next()?;
-        Some(points.fold((first, first), |(lo, hi), p| {
-            (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
-        }))
-    }
-}
-
 /// A tool mesh's overlap with the tissue in a step's penalty field.
 pub(crate) struct ToolOverlap {
     /// The tool's index in the scene.
@@ -345,12 +326,23 @@ impl Group {
 
     /// The box holding the group at vertex positions `positions` (per slot); `None` when empty.
     fn bounds(&self, positions: &[Vec3]) -> Option<(Vec3, Vec3)> {
-        let mut points = self.vertices.iter().map(|&v| positions[v as usize]);
-        let first = points.next()?;
-        Some(points.fold((first, first), |(lo, hi), p| {
-            (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
-        }))
+        box_of(self.vertices.iter().map(|&v| positions[v as usize]))
     }
+}
+
+/// The box holding `points`; `None` without any.
+fn box_of(mut points: impl Iterator<Item = Vec3>) -> Option<(Vec3, Vec3)> {
+    let first = points.next()?;
+    Some(points.fold((first, first), |(lo, hi), p| {
+        (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
+    }))
+}
+
+/// The box two boxes share; `None` when they share no volume.
+fn common((alo, ahi): (Vec3, Vec3), (blo, bhi): (Vec3, Vec3)) -> Option<(Vec3, Vec3)> {
+    let lo: Vec3 = std::array::from_fn(|k| alo[k].max(blo[k]));
+    let hi: Vec3 = std::array::from_fn(|k| ahi[k].min(bhi[k]));
+    (0..3).all(|k| lo[k] < hi[k]).then_some((lo, hi))
 }
 
 /// The mean length of the surface's edges at `rest` (m; 0 without triangles).

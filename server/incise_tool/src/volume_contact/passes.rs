@@ -120,6 +120,9 @@ pub(crate) struct Bound<'f> {
 #[derive(Debug, Default)]
 pub struct Passes {
     images: [Ldi; 2],
+    /// Still surfaces' complete images, for [`Passes::overlap_intervals_against_still`], the
+    /// last used first.
+    still: Vec<StillImages>,
     /// Per surface, its vertices' [`code`]s against the region.
     codes: [Vec<u16>; 2],
     /// Per surface and view axis, the triangles over the region's pixels in that view.
@@ -141,20 +144,52 @@ impl Passes {
         out: &mut Vec<OverlapInterval>,
     ) {
         self.each_overlap(a, b, region, resolution, |axis, pixel, area, start, end| {
-            out.push(OverlapInterval {
-                axis,
-                pixel,
-                area,
-                depths: [start.end.depth, end.end.depth],
-                bounds: [start, end].map(|bd| {
-                    let surface = match bd.side {
-                        Side::A => a,
-                        Side::B => b,
-                    };
-                    bd.end.bound(bd.side, surface)
-                }),
-            });
+            out.push(pair_interval([a, b], axis, pixel, area, [start, end]));
         });
+    }
+
+    /// As [`Passes::overlap_intervals`], with `b` still: its complete images in the three
+    /// views over `region` are kept, and reused while `b`'s triangles, their vertices' positions
+    /// (bit for bit), `region` and `resolution` stay the same, so that a tissue held in place
+    /// costs nothing once drawn. The intervals are those of [`Passes::overlap_intervals`]: a
+    /// complete image bounds every interval a partial one does, by the same crossings.
+    ///
+    /// Only a region that stays put while `a` moves, such as `b`'s own box (which holds the
+    /// whole intersection), lets the images be reused.
+    pub fn overlap_intervals_against_still(
+        &mut self,
+        a: &TriangleSurface<'_>,
+        b: &TriangleSurface<'_>,
+        region: (Vec3, Vec3),
+        resolution: usize,
+        out: &mut Vec<OverlapInterval>,
+    ) {
+        /// How many still surfaces' images are kept (a scene rarely holds more than one
+        /// tissue in place).
+        const KEPT: usize = 4;
+        let still = if let Some(i) = self.still.iter().position(|s| s.holds(b, region, resolution))
+        {
+            self.still.remove(i)
+        } else {
+            let mut s = if self.still.len() < KEPT {
+                StillImages::default()
+            } else {
+                self.still.pop().unwrap_or_default()
+            };
+            s.draw(b, region, resolution);
+            s
+        };
+        self.each_overlap_with(
+            a,
+            b,
+            Some(&still.images),
+            region,
+            resolution,
+            |axis, pixel, area, start, end| {
+                out.push(pair_interval([a, b], axis, pixel, area, [start, end]));
+            },
+        );
+        self.still.insert(0, still);
     }
 
     /// Appends [`super::self_overlap_intervals`]'s intervals of `surface` to `out`.
@@ -186,6 +221,20 @@ impl Passes {
         b: &TriangleSurface<'_>,
         region: (Vec3, Vec3),
         resolution: usize,
+        f: impl FnMut(usize, [usize; 2], f64, Bound<'_>, Bound<'_>),
+    ) {
+        self.each_overlap_with(a, b, None, region, resolution, f);
+    }
+
+    /// [`Passes::each_overlap`], with `b`'s complete images in the three views already drawn
+    /// where `still` gives them.
+    fn each_overlap_with(
+        &mut self,
+        a: &TriangleSurface<'_>,
+        b: &TriangleSurface<'_>,
+        still: Option<&[Ldi; 3]>,
+        region: (Vec3, Vec3),
+        resolution: usize,
         mut f: impl FnMut(usize, [usize; 2], f64, Bound<'_>, Bound<'_>),
     ) {
         let (lo, hi) = region;
@@ -194,23 +243,32 @@ impl Passes {
         }
         let surfaces = [a, b];
         codes_into(a.positions, region, &mut self.codes[0]);
-        if std::ptr::eq(a.positions, b.positions) {
-            let [ca, cb] = &mut self.codes;
-            cb.clone_from(ca);
-        } else {
-            codes_into(b.positions, region, &mut self.codes[1]);
-        }
-        for s in 0..2 {
-            in_plane_into(surfaces[s], &self.codes[s], &mut self.in_plane[s]);
+        in_plane_into(a, &self.codes[0], &mut self.in_plane[0]);
+        if still.is_none() {
+            if std::ptr::eq(a.positions, b.positions) {
+                let [ca, cb] = &mut self.codes;
+                cb.clone_from(ca);
+            } else {
+                codes_into(b.positions, region, &mut self.codes[1]);
+            }
+            in_plane_into(b, &self.codes[1], &mut self.in_plane[1]);
         }
         for axis in 0..3 {
             let view = View::covering(axis, lo, hi, resolution);
             let depths = (lo[axis], hi[axis]);
-            let Self { images, codes, in_plane, candidates, spare, reach } = self;
-            let mut directions: [Direction; 2] = std::array::from_fn(|s| {
-                let c = &mut candidates[s];
-                candidates_into(surfaces[s], &codes[s], &in_plane[s][axis], axis, c, spare)
-            });
+            let Self { images, codes, in_plane, candidates, spare, reach, .. } = self;
+            let mut directions = [Direction::Forward; 2];
+            directions[0] =
+                candidates_into(a, &codes[0], &in_plane[0][axis], axis, &mut candidates[0], spare);
+            if let Some(still) = still {
+                // `b` complete, counted from the near end: `a` needs no more than its own.
+                images[0].rasterize_into(a, &view, candidates[0].iter().copied());
+                let [la, _] = &*images;
+                each_pixel_overlap(&view, depths, [la, &still[axis]], directions, &mut f);
+                continue;
+            }
+            directions[1] =
+                candidates_into(b, &codes[1], &in_plane[1][axis], axis, &mut candidates[1], spare);
             // The surface with fewer candidates first; the other skips what lies outside it.
             let (first, second) =
                 if candidates[1].len() < candidates[0].len() { (1, 0) } else { (0, 1) };
@@ -225,32 +283,7 @@ impl Passes {
                 candidates[second].iter().copied(),
             );
             let [la, lb] = &*images;
-            let area = view.pixel_area();
-            let (mut ia, mut ib) = (Vec::new(), Vec::new());
-            for p in 0..view.size[0] * view.size[1] {
-                ia.clear();
-                inside(la.pixel(p), directions[0], 1, depths, false, &mut ia);
-                if ia.is_empty() {
-                    continue;
-                }
-                ib.clear();
-                inside(lb.pixel(p), directions[1], 1, depths, false, &mut ib);
-                let pixel = [p % view.size[0], p / view.size[0]];
-                overlaps(&ia, &ib, |mut start, mut end| {
-                    // Both still inside before or past every crossing listed: only a region
-                    // that does not hold the whole intersection sees this, and it ends at its
-                    // face.
-                    if start.end.crossing.is_none() && start.end.depth < depths.0 {
-                        start.end.depth = depths.0;
-                    }
-                    if end.end.crossing.is_none() && end.end.depth > depths.1 {
-                        end.end.depth = depths.1;
-                    }
-                    if end.end.depth > start.end.depth {
-                        f(axis, pixel, area, start, end);
-                    }
-                });
-            }
+            each_pixel_overlap(&view, depths, [la, lb], directions, &mut f);
         }
     }
 
@@ -289,6 +322,132 @@ impl Passes {
             }
         }
     }
+}
+
+/// An overlap interval of two surfaces, from its two bounds.
+fn pair_interval(
+    [a, b]: [&TriangleSurface<'_>; 2],
+    axis: usize,
+    pixel: [usize; 2],
+    area: f64,
+    ends: [Bound<'_>; 2],
+) -> OverlapInterval {
+    OverlapInterval {
+        axis,
+        pixel,
+        area,
+        depths: ends.map(|bd| bd.end.depth),
+        bounds: ends.map(|bd| {
+            let surface = match bd.side {
+                Side::A => a,
+                Side::B => b,
+            };
+            bd.end.bound(bd.side, surface)
+        }),
+    }
+}
+
+/// Calls `f(axis, pixel, pixel area, start, end)` for every interval of every pixel's ray in
+/// `view` that lies inside both surfaces of `images` (each counted in its `directions`), by
+/// pixel row and column, then depth; `depths` is the region's extent along the rays.
+fn each_pixel_overlap<'f>(
+    view: &View,
+    depths: (f64, f64),
+    [la, lb]: [&'f Ldi; 2],
+    directions: [Direction; 2],
+    f: &mut impl FnMut(usize, [usize; 2], f64, Bound<'f>, Bound<'f>),
+) {
+    let area = view.pixel_area();
+    let (mut ia, mut ib) = (Vec::new(), Vec::new());
+    for p in 0..view.size[0] * view.size[1] {
+        ia.clear();
+        inside(la.pixel(p), directions[0], 1, depths, false, &mut ia);
+        if ia.is_empty() {
+            continue;
+        }
+        ib.clear();
+        inside(lb.pixel(p), directions[1], 1, depths, false, &mut ib);
+        let pixel = [p % view.size[0], p / view.size[0]];
+        overlaps(&ia, &ib, |mut start, mut end| {
+            // Both still inside before or past every crossing listed: only a region that does
+            // not hold the whole intersection sees this, and it ends at its face.
+            if start.end.crossing.is_none() && start.end.depth < depths.0 {
+                start.end.depth = depths.0;
+            }
+            if end.end.crossing.is_none() && end.end.depth > depths.1 {
+                end.end.depth = depths.1;
+            }
+            if end.end.depth > start.end.depth {
+                f(view.axis, pixel, area, start, end);
+            }
+        });
+    }
+}
+
+/// A still surface's complete images in the three views over a region: every triangle over the
+/// region's pixels drawn, so that every pixel's crossings are all there.
+#[derive(Debug, Default)]
+struct StillImages {
+    /// The region and resolution drawn for (`None`: nothing drawn).
+    views: Option<((Vec3, Vec3), usize)>,
+    /// The surface's triangles when drawn.
+    triangles: Vec<[u32; 3]>,
+    /// Each vertex the triangles use, ascending, with its position's bits when drawn.
+    vertices: Vec<(u32, [u64; 3])>,
+    images: [Ldi; 3],
+}
+
+impl StillImages {
+    /// Whether these are `surface`'s images over `region` at `resolution`, the surface
+    /// unchanged bit for bit since they were drawn.
+    fn holds(
+        &self,
+        surface: &TriangleSurface<'_>,
+        region: (Vec3, Vec3),
+        resolution: usize,
+    ) -> bool {
+        let same_views = self.views.is_some_and(|(r, n)| {
+            n == resolution
+                && bits_of(r.0) == bits_of(region.0)
+                && bits_of(r.1) == bits_of(region.1)
+        });
+        same_views
+            && self.triangles == surface.triangles
+            && self.vertices.iter().all(|&(v, bits)| {
+                surface.positions.get(v as usize).is_some_and(|&p| bits_of(p) == bits)
+            })
+    }
+
+    /// Draws `surface`'s complete images over `region` at `resolution`.
+    fn draw(&mut self, surface: &TriangleSurface<'_>, region: (Vec3, Vec3), resolution: usize) {
+        self.triangles.clear();
+        self.triangles.extend_from_slice(surface.triangles);
+        let mut used: Vec<u32> = surface.triangles.iter().flatten().copied().collect();
+        used.sort_unstable();
+        used.dedup();
+        self.vertices.clear();
+        self.vertices.extend(
+            used.iter()
+                .filter_map(|&v| surface.positions.get(v as usize).map(|&p| (v, bits_of(p)))),
+        );
+        let (lo, hi) = region;
+        let mut codes = Vec::new();
+        let mut in_plane: [Vec<u32>; 3] = Default::default();
+        if is_box(region) {
+            codes_into(surface.positions, region, &mut codes);
+            in_plane_into(surface, &codes, &mut in_plane);
+        }
+        for (axis, (image, triangles)) in self.images.iter_mut().zip(&in_plane).enumerate() {
+            let view = View::covering(axis, lo, hi, resolution);
+            image.rasterize_into(surface, &view, triangles.iter().copied());
+        }
+        self.views = Some((region, resolution));
+    }
+}
+
+/// A point's coordinates as bits, for comparisons that tell `-0.0` from `0.0`.
+fn bits_of(p: Vec3) -> [u64; 3] {
+    p.map(f64::to_bits)
 }
 
 /// Whether `lo < hi` along every axis.

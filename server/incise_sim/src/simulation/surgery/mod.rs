@@ -15,8 +15,8 @@ mod volume;
 
 pub use surface::OrganSurface;
 
-use volume::PosedMesh;
 pub(crate) use volume::VolumeContact;
+use volume::{Nodes, PosedMesh};
 
 use super::keyframe::ToolState;
 use super::{CutError, InputError, Simulation, StageCounters, StepInputs};
@@ -527,8 +527,9 @@ impl Simulation {
                 .collect();
             let (x, model) = (&self.state.x, self.model());
             let diff = &mut counters.gpu_cpu_volume_diff;
+            let nodes = Nodes { x, model, fixed: &self.fixed };
             let step =
-                volume.as_mut().and_then(|v| v.step(surface, positions, x, model, &meshes, diff));
+                volume.as_mut().and_then(|v| v.step(surface, positions, nodes, &meshes, diff));
             counters.volume_contact_ns = elapsed(t);
             if let Some(s) = &step {
                 counters.overlap_regions = s.regions().len();

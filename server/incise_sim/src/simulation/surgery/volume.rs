@@ -8,7 +8,11 @@
 //! motion or a cut left, is pushed apart the same way.
 //!
 //! **Where it looks.** A pair of tissues is tested over the overlap of their surfaces' bounding
-//! boxes. A surface against itself is tested only around the walls of its cuts: the box of the
+//! boxes, unless one of them is held in place (every vertex carried by fixed nodes alone, a
+//! kidney under the liver): then over that tissue's own box, which holds the whole intersection
+//! too and does not move, so that the still tissue's depth images are drawn once and reused
+//! from step to step ([`incise_tool::volume_contact::Passes::overlap_intervals_against_still`])
+//! instead of being culled against the moving one's every step. A surface against itself is tested only around the walls of its cuts: the box of the
 //! vertices cuts created (each cut's re-mesh names them), grown by two mean edge lengths. An
 //! uncut organ does not fold onto itself at the strains a surgery simulator sees, and a whole-
 //! organ self test every frame would cost more than the frame. The cut vertices are topology,
@@ -27,7 +31,7 @@ use super::OrganSurface;
 use super::cut;
 use crate::config::VolumeContactSpec;
 use incise_fem::forcefield::volume::{OverlapRegion, VolumePenalty};
-use incise_fem::{Executor, HexModel};
+use incise_fem::{Executor, FixedNodes, HexModel};
 use incise_math::Vec3;
 use incise_surface::SurfaceChanges;
 use incise_tool::volume_contact::{
@@ -138,7 +142,7 @@ impl VolumeContact {
     }
 
     /// The overlaps of `surface` at vertex positions `positions` (per slot), as a penalty field
-    /// linearised at node positions `x` (of `model`, for a voxel surface); `None` when nothing
+    /// linearised at the `nodes`' positions; `None` when nothing
     /// overlaps; the posed `tools` meshes' overlaps with every tissue join the field, and are
     /// kept for [`Self::tool_overlaps`]. With a check, `diff` gets the largest relative
     /// difference between a device pass's volume and the CPU's.
@@ -146,18 +150,19 @@ impl VolumeContact {
         &mut self,
         surface: &OrganSurface,
         positions: &[Vec3],
-        x: &[Vec3],
-        model: Option<&HexModel>,
+        nodes: Nodes<'_>,
         tools: &[PosedMesh],
         diff: &mut f64,
     ) -> Option<VolumePenalty> {
+        let Nodes { x, model, fixed } = nodes;
         self.tool_overlaps.clear();
         let cut_regions =
             if self.spec.self_contact { self.cut_regions(surface, positions) } else { Vec::new() };
         let Self { spec, pairs, device, stale, check, groups, passes: cpu, tool_overlaps, .. } =
             self;
         let groups = groups.get_or_insert_with(|| {
-            surface.triangles_by_group().into_iter().map(Group::new).collect()
+            let groups = surface.triangles_by_group().into_iter();
+            groups.map(|triangles| Group::new(triangles, surface, fixed)).collect()
         });
         if let Some(device) = device {
             if *stale {
@@ -171,23 +176,35 @@ impl VolumeContact {
         let group = |g: u16| groups.get(usize::from(g)).map_or(&[][..], |g| &g.triangles);
         let side = |g: u16| TriangleSurface { positions, triangles: group(g) };
         let bounds = |g: u16| groups.get(usize::from(g)).and_then(|g| g.bounds(positions));
-        let mut passes: Vec<(u16, Option<u16>, (Vec3, Vec3))> = Vec::new();
+        let still = |g: u16| groups.get(usize::from(g)).is_some_and(|g| g.still);
+        let mut passes: Vec<Pass> = Vec::new();
         for &[a, b] in pairs.iter() {
-            if let Some(region) = bounds(a).zip(bounds(b)).and_then(|(a, b)| common(a, b)) {
-                passes.push((a, Some(b), region));
+            let (Some(box_a), Some(box_b)) = (bounds(a), bounds(b)) else { continue };
+            if common(box_a, box_b).is_none() {
+                continue;
+            }
+            // A tissue held in place is looked at over its own box, which holds the whole
+            // intersection and stays put, so that its images are drawn once.
+            match (still(a), still(b)) {
+                (false, true) => passes.push((a, Some(b), box_b, true)),
+                (true, false) => passes.push((b, Some(a), box_a, true)),
+                _ => passes.push((a, Some(b), common(box_a, box_b).unwrap_or(box_a), false)),
             }
         }
         for (g, region) in cut_regions {
-            passes.push((g, None, region));
+            passes.push((g, None, region, false));
         }
         let resolution = spec.resolution;
         let mut found: Vec<Overlap> = Vec::new();
         let mut on_cpu: Vec<OverlapInterval> = Vec::new();
-        for (a, b, region) in passes {
+        for (a, b, region, b_still) in passes {
             let mut cpu_pass = |out: &mut Vec<OverlapInterval>| {
                 out.clear();
                 let sa = side(a);
                 match b {
+                    Some(b) if b_still => {
+                        cpu.overlap_intervals_against_still(&sa, &side(b), region, resolution, out);
+                    }
                     Some(b) => cpu.overlap_intervals(&sa, &side(b), region, resolution, out),
                     None => cpu.self_overlap_intervals(&sa, region, resolution, out),
                 }
@@ -285,6 +302,21 @@ impl VolumeContact {
     }
 }
 
+/// The model's nodes as a step's volume contact sees them.
+#[derive(Clone, Copy)]
+pub(crate) struct Nodes<'a> {
+    /// Their positions.
+    pub(crate) x: &'a [Vec3],
+    /// The model they belong to, for a voxel surface.
+    pub(crate) model: Option<&'a HexModel>,
+    /// Which are held in place.
+    pub(crate) fixed: &'a FixedNodes,
+}
+
+/// One pass of a step: surface group `a` against group `b` (`None`: against itself) over
+/// `region`, with whether `b` is still.
+type Pass = (u16, Option<u16>, (Vec3, Vec3), bool);
+
 /// A tool's closed mesh at its pose this step, for volume contact with the tissue.
 pub(crate) struct PosedMesh<'a> {
     /// The tool's index in the scene.
@@ -314,14 +346,23 @@ struct Group {
     triangles: Vec<[u32; 3]>,
     /// Ascending.
     vertices: Vec<u32>,
+    /// Whether every vertex is carried by fixed nodes alone, so that the group never moves
+    /// (fixed nodes change only with the grid, and the surface is re-meshed with it).
+    still: bool,
 }
 
 impl Group {
-    fn new(triangles: Vec<[u32; 3]>) -> Self {
+    fn new(triangles: Vec<[u32; 3]>, surface: &OrganSurface, fixed: &FixedNodes) -> Self {
         let mut vertices: Vec<u32> = triangles.iter().flatten().copied().collect();
         vertices.sort_unstable();
         vertices.dedup();
-        Self { triangles, vertices }
+        let still = !vertices.is_empty()
+            && vertices.iter().all(|&v| {
+                let e = surface.embedding(v);
+                let nodes = e.nodes.iter().zip(&e.weights);
+                nodes.into_iter().all(|(&n, &w)| w == 0.0 || fixed.is_fixed(n as usize))
+            });
+        Self { triangles, vertices, still }
     }
 
     /// The box holding the group at vertex positions `positions` (per slot); `None` when empty.

@@ -58,10 +58,10 @@ fn codes_into(positions: &[Vec3], (lo, hi): (Vec3, Vec3), out: &mut Vec<u16>) {
         let mut c = 0;
         for k in 0..3 {
             let x = p[k];
-            let bits = u16::from(!(x >= lo[k])) * code::BELOW
-                | u16::from(!(x <= hi[k])) * code::ABOVE
-                | u16::from(!(x >= before[k])) * code::BEFORE
-                | u16::from(!(x <= beyond[k])) * code::BEYOND;
+            let bits = (u16::from(!(x >= lo[k])) * code::BELOW)
+                | (u16::from(!(x <= hi[k])) * code::ABOVE)
+                | (u16::from(!(x >= before[k])) * code::BEFORE)
+                | (u16::from(!(x <= beyond[k])) * code::BEYOND);
             c |= code::on(bits, k);
         }
         c
@@ -180,7 +180,7 @@ impl Passes {
         self.each_overlap_with(
             a,
             b,
-            Some(&still.images),
+            Some(&still),
             region,
             resolution,
             |axis, pixel, area, start, end| {
@@ -230,7 +230,7 @@ impl Passes {
         &mut self,
         a: &TriangleSurface<'_>,
         b: &TriangleSurface<'_>,
-        still: Option<&[Ldi; 3]>,
+        still: Option<&StillImages>,
         region: (Vec3, Vec3),
         resolution: usize,
         mut f: impl FnMut(usize, [usize; 2], f64, Bound<'_>, Bound<'_>),
@@ -259,10 +259,12 @@ impl Passes {
             directions[0] =
                 candidates_into(a, &codes[0], &in_plane[0][axis], axis, &mut candidates[0], spare);
             if let Some(still) = still {
-                // `b` complete, counted from the near end: `a` needs no more than its own.
+                // `b` complete, counted from the near end: `a` needs no more than what can
+                // meet it.
+                keep_reaching(a, &view, &still.reach[axis], directions[0], &mut candidates[0]);
                 images[0].rasterize_into(a, &view, candidates[0].iter().copied());
                 let [la, _] = &*images;
-                each_pixel_overlap(&view, depths, [la, &still[axis]], directions, &mut f);
+                each_pixel_overlap(&view, depths, [la, &still.images[axis]], directions, &mut f);
                 continue;
             }
             directions[1] =
@@ -393,6 +395,8 @@ struct StillImages {
     /// Each vertex the triangles use, ascending, with its position's bits when drawn.
     vertices: Vec<(u32, [u64; 3])>,
     images: [Ldi; 3],
+    /// Per view, each pixel's inside span ([`reach_into`]).
+    reach: [Vec<[f64; 2]>; 3],
 }
 
 impl StillImages {
@@ -438,6 +442,7 @@ impl StillImages {
         for (axis, (image, triangles)) in self.images.iter_mut().zip(&in_plane).enumerate() {
             let view = View::covering(axis, lo, hi, resolution);
             image.rasterize_into(surface, &view, triangles.iter().copied());
+            reach_into(image, Direction::Forward, (lo[axis], hi[axis]), &mut self.reach[axis]);
         }
         self.views = Some((region, resolution));
     }
@@ -551,25 +556,12 @@ fn reached(
     candidates: &mut Vec<u32>,
     spare: &mut Vec<u32>,
 ) -> Direction {
-    let (axis, (u, v)) = (view.axis, plane_axes(view.axis));
     let (mut forward, mut backward) = (Vec::new(), Vec::new());
     std::mem::swap(&mut forward, candidates);
     std::mem::swap(&mut backward, spare);
     backward.clear();
     forward.retain(|&t| {
-        let [lo_t, hi_t] = triangle_box(surface, surface.triangles[t as usize]);
-        let [columns, rows] = view.pixels_in([lo_t[u], lo_t[v]], [hi_t[u], hi_t[v]]);
-        let (mut ahead, mut behind) = (false, false);
-        'pixels: for j in rows {
-            let row = &reach[view.size[0] * j..][columns.clone()];
-            for &[start, end] in row {
-                ahead |= lo_t[axis] <= end;
-                behind |= hi_t[axis] >= start;
-                if ahead && behind {
-                    break 'pixels;
-                }
-            }
-        }
+        let [ahead, behind] = reaches(surface, view, reach, t, [true, true]);
         if behind {
             backward.push(t);
         }
@@ -584,6 +576,48 @@ fn reached(
     *candidates = forward;
     *spare = backward;
     direction
+}
+
+/// Keeps of `candidates` (triangles of `surface` counted in `direction` in `view`) those that
+/// can bound an overlap with a surface whose spans per pixel are `reach` ([`reach_into`]):
+/// counted forward, those not beyond the span at some pixel they cover; backward, those not
+/// before it. What is dropped crosses each ray only where the other surface is not inside.
+fn keep_reaching(
+    surface: &TriangleSurface<'_>,
+    view: &View,
+    reach: &[[f64; 2]],
+    direction: Direction,
+    candidates: &mut Vec<u32>,
+) {
+    let wanted = [direction == Direction::Forward, direction == Direction::Backward];
+    candidates.retain(|&t| reaches(surface, view, reach, t, wanted) == wanted);
+}
+
+/// Of the `wanted` answers, whether triangle `t` of `surface` is, at some pixel of `view` its
+/// box covers, not beyond the span `reach` gives there (counted forward: it is needed) and not
+/// before it (counted backward); an answer not wanted is false.
+#[inline]
+fn reaches(
+    surface: &TriangleSurface<'_>,
+    view: &View,
+    reach: &[[f64; 2]],
+    t: u32,
+    wanted: [bool; 2],
+) -> [bool; 2] {
+    let (axis, (u, v)) = (view.axis, plane_axes(view.axis));
+    let [lo_t, hi_t] = triangle_box(surface, surface.triangles[t as usize]);
+    let [columns, rows] = view.pixels_in([lo_t[u], lo_t[v]], [hi_t[u], hi_t[v]]);
+    let (mut ahead, mut behind) = (false, false);
+    for j in rows {
+        for &[start, end] in &reach[view.size[0] * j..][columns.clone()] {
+            ahead |= wanted[0] && lo_t[axis] <= end;
+            behind |= wanted[1] && hi_t[axis] >= start;
+            if ahead == wanted[0] && behind == wanted[1] {
+                return [ahead, behind];
+            }
+        }
+    }
+    [ahead, behind]
 }
 
 /// How far past a depth a triangle must start to be skipped as lying beyond it: a crossing's

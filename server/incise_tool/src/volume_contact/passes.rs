@@ -49,19 +49,21 @@ mod code {
 
 /// Each vertex's [`code`] against `region`, into `out`.
 fn codes_into(positions: &[Vec3], (lo, hi): (Vec3, Vec3), out: &mut Vec<u16>) {
+    const ALL: u16 = code::BELOW | code::ABOVE | code::BEFORE | code::BEYOND;
     let slacks: [f64; 3] = std::array::from_fn(|k| slack((lo[k], hi[k])));
     let before: Vec3 = std::array::from_fn(|k| lo[k] - slacks[k]);
     let beyond: Vec3 = std::array::from_fn(|k| hi[k] + slacks[k]);
     out.clear();
-    // Each bit as a negated comparison, which a NaN fails: it sets them all, with no branch.
+    // Every bit from a comparison, with no branch; a NaN sets them all.
     out.extend(positions.iter().map(|p| {
         let mut c = 0;
         for k in 0..3 {
             let x = p[k];
-            let bits = (u16::from(!(x >= lo[k])) * code::BELOW)
-                | (u16::from(!(x <= hi[k])) * code::ABOVE)
-                | (u16::from(!(x >= before[k])) * code::BEFORE)
-                | (u16::from(!(x <= beyond[k])) * code::BEYOND);
+            let bits = (u16::from(x < lo[k]) * code::BELOW)
+                | (u16::from(x > hi[k]) * code::ABOVE)
+                | (u16::from(x < before[k]) * code::BEFORE)
+                | (u16::from(x > beyond[k]) * code::BEYOND)
+                | (u16::from(x.is_nan()) * ALL);
             c |= code::on(bits, k);
         }
         c

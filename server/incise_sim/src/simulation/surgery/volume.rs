@@ -186,9 +186,12 @@ impl VolumeContact {
             // A tissue held in place is looked at over its own box, which holds the whole
             // intersection and stays put, so that its images are drawn once.
             match (still(a), still(b)) {
-                (false, true) => passes.push((a, Some(b), box_b, true)),
-                (true, false) => passes.push((b, Some(a), box_a, true)),
-                _ => passes.push((a, Some(b), common(box_a, box_b).unwrap_or(box_a), false)),
+                (false, true) => passes.push((a, Some(b), off_lattice(box_b), true)),
+                (true, false) => passes.push((b, Some(a), off_lattice(box_a), true)),
+                _ => {
+                    let region = off_lattice(common(box_a, box_b).unwrap_or(box_a));
+                    passes.push((a, Some(b), region, false));
+                }
             }
         }
         for (g, region) in cut_regions {
@@ -377,6 +380,20 @@ fn box_of(mut points: impl Iterator<Item = Vec3>) -> Option<(Vec3, Vec3)> {
     Some(points.fold((first, first), |(lo, hi), p| {
         (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
     }))
+}
+
+/// `region` grown by a little over a thousandth of its size (√2/1000 below, half that above),
+/// which moves the views' pixel centres off the voxel lattice. A tissue at rest (one held in
+/// place) has its surface's walls exactly on lattice planes, and a box from its own vertices
+/// divided into pixels puts pixel centres on those walls' edges. The CPU decides such a tie
+/// exactly; a device in `f32` cannot, and took a crossing twice or not at all on some rays (a
+/// volume 3–7 % off the CPU's at the 109,201-voxel liver on the kidney).
+fn off_lattice((lo, hi): (Vec3, Vec3)) -> (Vec3, Vec3) {
+    const GROWTH: f64 = std::f64::consts::SQRT_2 * 1e-3;
+    (
+        std::array::from_fn(|k| lo[k] - GROWTH * (hi[k] - lo[k])),
+        std::array::from_fn(|k| hi[k] + 0.5 * GROWTH * (hi[k] - lo[k])),
+    )
 }
 
 /// The box two boxes share; `None` when they share no volume.

@@ -12,10 +12,12 @@
 //! kidney under the liver): then over that tissue's own box, which holds the whole intersection
 //! too and does not move, so that the still tissue's depth images are drawn once and reused
 //! from step to step ([`incise_tool::volume_contact::Passes::overlap_intervals_against_still`])
-//! instead of being culled against the moving one's every step. A surface against itself is tested only around the walls of its cuts: the box of the
-//! vertices cuts created (each cut's re-mesh names them), grown by two mean edge lengths. An
-//! uncut organ does not fold onto itself at the strains a surgery simulator sees, and a whole-
-//! organ self test every frame would cost more than the frame. The cut vertices are topology,
+//! instead of being culled against the moving one's every step. Either box is grown a little
+//! off the voxel lattice (`off_lattice`). A surface against itself is tested only around the
+//! walls of its cuts: the box of the vertices cuts created (each cut's re-mesh names them),
+//! grown by two mean edge lengths. An uncut organ does not fold onto itself at the strains a
+//! surgery simulator sees, and a whole-organ self test every frame would cost more than the
+//! frame. The cut vertices are topology,
 //! rebuilt by re-applying a session's edits, so a replay from a keyframe looks where the
 //! session looked.
 //!
@@ -142,9 +144,9 @@ impl VolumeContact {
     }
 
     /// The overlaps of `surface` at vertex positions `positions` (per slot), as a penalty field
-    /// linearised at the `nodes`' positions; `None` when nothing
-    /// overlaps; the posed `tools` meshes' overlaps with every tissue join the field, and are
-    /// kept for [`Self::tool_overlaps`]. With a check, `diff` gets the largest relative
+    /// linearised at the `nodes`' positions; `None` when nothing overlaps; the posed `tools`
+    /// meshes' overlaps with every tissue join the field, and are kept for
+    /// [`Self::tool_overlaps`]. With a check, `diff` gets the largest relative
     /// difference between a device pass's volume and the CPU's.
     pub(crate) fn step(
         &mut self,
@@ -180,18 +182,13 @@ impl VolumeContact {
         let mut passes: Vec<Pass> = Vec::new();
         for &[a, b] in pairs.iter() {
             let (Some(box_a), Some(box_b)) = (bounds(a), bounds(b)) else { continue };
-            if common(box_a, box_b).is_none() {
-                continue;
-            }
+            let Some(shared) = common(box_a, box_b) else { continue };
             // A tissue held in place is looked at over its own box, which holds the whole
             // intersection and stays put, so that its images are drawn once.
             match (still(a), still(b)) {
                 (false, true) => passes.push((a, Some(b), off_lattice(box_b), true)),
                 (true, false) => passes.push((b, Some(a), off_lattice(box_a), true)),
-                _ => {
-                    let region = off_lattice(common(box_a, box_b).unwrap_or(box_a));
-                    passes.push((a, Some(b), region, false));
-                }
+                _ => passes.push((a, Some(b), off_lattice(shared), false)),
             }
         }
         for (g, region) in cut_regions {
@@ -362,8 +359,8 @@ impl Group {
         let still = !vertices.is_empty()
             && vertices.iter().all(|&v| {
                 let e = surface.embedding(v);
-                let nodes = e.nodes.iter().zip(&e.weights);
-                nodes.into_iter().all(|(&n, &w)| w == 0.0 || fixed.is_fixed(n as usize))
+                let mut nodes = e.nodes.iter().zip(&e.weights);
+                nodes.all(|(&n, &w)| w == 0.0 || fixed.is_fixed(n as usize))
             });
         Self { triangles, vertices, still }
     }

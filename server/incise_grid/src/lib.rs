@@ -6,10 +6,12 @@
 //! Cutting removes voxels or severs links and updates all of it incrementally.
 
 pub mod canonical;
+pub mod composite;
 pub mod condense;
 pub mod error;
 pub mod grid;
 pub mod hex8;
+pub mod incompatible;
 pub mod material;
 pub mod procedural;
 pub mod topology;

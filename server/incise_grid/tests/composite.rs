@@ -1,0 +1,140 @@
+//! Composite coarse elements (`incise_grid::composite`) against what they must satisfy whatever
+//! the voxels: no energy in rigid motions; never stiffer than the Galerkin (condensed) element,
+//! never of negative energy; and, in a cell whose points are all shared with neighbours (nothing
+//! free but the inner points), the same forces as the Galerkin element for every linear field, the
+//! fields a homogeneous cell's inner points already balance (the patch test).
+
+use incise_grid::composite::composite_stiffness;
+use incise_grid::hex8::{Mat24, corner, rigid_modes};
+use incise_grid::procedural::from_fn;
+use incise_grid::{BranchedGrid, LabelVolume, Material, MaterialTable};
+
+fn grid(volume: &LabelVolume, level: u32) -> BranchedGrid {
+    let table = MaterialTable::uniform(&[1, 2], Material::new(3e3, 0.45, 1000.0));
+    BranchedGrid::build(volume, &table, level).unwrap()
+}
+
+/// A 24 × 16 × 24 block of 2 mm voxels with two holes along y and a second, stiffer material in
+/// one corner: thin walls, superimposed elements and material borders at every level.
+fn holed_block() -> LabelVolume {
+    from_fn([24, 16, 24], [2e-3; 3], |x, y, z| {
+        let hole = [(7.0, 8.0), (16.0, 15.0)]
+            .iter()
+            .any(|&(cx, cz)| (x + 0.5 - cx).powi(2) + (z + 0.5 - cz).powi(2) < 10.0);
+        if hole {
+            0
+        } else if x > 17.0 && y > 9.0 {
+            2
+        } else {
+            1
+        }
+    })
+}
+
+fn energy(k: &Mat24, u: &[f64; 24]) -> f64 {
+    let ku = k.mul_vec(u);
+    ku.iter().zip(u).map(|(a, b)| a * b).sum()
+}
+
+/// A fixed sequence of pseudo-random vectors in [−1, 1]²⁴ (xorshift: no dependency, same every
+/// run).
+fn vectors(count: usize) -> Vec<[f64; 24]> {
+    let mut s: u64 = 0x9e37_79b9_7f4a_7c15;
+    (0..count)
+        .map(|_| {
+            std::array::from_fn(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+            })
+        })
+        .collect()
+}
+
+#[test]
+fn rigid_motions_cost_nothing_and_no_element_is_stiffer_than_the_condensed_one() {
+    let volume = holed_block();
+    let probes = vectors(64);
+    for level in 1..=3 {
+        let grid = grid(&volume, level);
+        let composite = composite_stiffness(&grid);
+        let size = grid.element_size();
+        let mut checked = 0;
+        let mut softer = 0;
+        for (id, _) in grid.top().elements() {
+            let k = composite[id as usize].as_ref().expect("live element");
+            let galerkin = &grid.matrices(id).unwrap().stiffness;
+            let scale = galerkin.frobenius();
+            for mode in rigid_modes(size) {
+                let f = k.mul_vec(&mode);
+                let norm = f.iter().map(|x| x * x).sum::<f64>().sqrt();
+                let len = mode.iter().map(|x| x * x).sum::<f64>().sqrt();
+                // Rounding of a few hundred products of entries of size `scale`.
+                assert!(
+                    norm <= 1e-11 * scale * len,
+                    "level {level}, element {id}: |K r| = {norm:e}"
+                );
+            }
+            for u in &probes {
+                let (ec, eg) = (energy(k, u), energy(galerkin, u));
+                let tol = 1e-11 * scale * 24.0;
+                assert!(ec >= -tol, "level {level}, element {id}: negative energy {ec:e}");
+                assert!(ec <= eg + tol, "level {level}, element {id}: {ec:e} > Galerkin {eg:e}");
+                softer += usize::from(ec < eg * (1.0 - 1e-6));
+            }
+            checked += 1;
+        }
+        println!(
+            "level {level}: {checked} elements, {softer} of {} probes softer than Galerkin",
+            checked * probes.len()
+        );
+        // The relaxation must do something: most cells hold points it frees.
+        assert!(
+            softer * 2 > checked * probes.len(),
+            "level {level}: the composite is the Galerkin element"
+        );
+    }
+}
+
+#[test]
+fn an_inner_homogeneous_cell_passes_the_patch_test() {
+    for level in 1..=2u32 {
+        let n = 3 * (1usize << level);
+        let volume = from_fn([n, n, n], [1e-3, 1.5e-3, 2e-3], |_, _, _| 1);
+        let grid = grid(&volume, level);
+        let composite = composite_stiffness(&grid);
+        let size = grid.element_size();
+        // The middle cell of 3 × 3 × 3: every point on its faces is shared.
+        let (id, _) = grid
+            .top()
+            .elements()
+            .find(|(_, e)| grid.top().cell_coords(e.cell) == [1, 1, 1])
+            .expect("the middle cell");
+        let k = composite[id as usize].as_ref().unwrap();
+        let galerkin = &grid.matrices(id).unwrap().stiffness;
+        let mut worst: f64 = 0.0;
+        for g in 0..9 {
+            // u = G x with G the unit matrix g (row g / 3, column g % 3).
+            let u: [f64; 24] = std::array::from_fn(|i| {
+                let (c, a) = (i / 3, i % 3);
+                let x = corner(c)[g % 3] as f64 * size[g % 3];
+                if a == g / 3 { x } else { 0.0 }
+            });
+            let (fc, fg) = (k.mul_vec(&u), galerkin.mul_vec(&u));
+            let diff = fc.iter().zip(&fg).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
+            let norm = fg.iter().map(|x| x * x).sum::<f64>().sqrt();
+            worst = worst.max(diff / norm);
+        }
+        println!("level {level}: linear fields, largest relative force difference {worst:e}");
+        assert!(worst <= 1e-10, "level {level}: the patch test fails by {worst:e}");
+        // The fields that are not linear do relax: moving one corner alone costs less.
+        let one_corner: [f64; 24] = std::array::from_fn(|i| f64::from(i == 0));
+        let (ec, eg) = (energy(k, &one_corner), energy(galerkin, &one_corner));
+        println!(
+            "level {level}: one corner moved, energy {:.4} of the Galerkin element's",
+            ec / eg
+        );
+        assert!(ec < eg * (1.0 - 1e-3), "level {level}: no relaxation ({ec:e} against {eg:e})");
+    }
+}

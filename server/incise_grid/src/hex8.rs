@@ -218,7 +218,7 @@ pub fn shape(n: usize, xi: Vec3) -> f64 {
 
 /// Gradient (w.r.t. physical coordinates) of corner `n`'s shape function at `xi`, on a box of
 /// edge lengths `size`.
-fn shape_gradient(n: usize, xi: Vec3, size: Vec3) -> Vec3 {
+pub(crate) fn shape_gradient(n: usize, xi: Vec3, size: Vec3) -> Vec3 {
     let b = corner(n);
     let f = |a: usize| if b[a] == 1 { xi[a] } else { 1.0 - xi[a] };
     let d = |a: usize| if b[a] == 1 { 1.0 / size[a] } else { -1.0 / size[a] };
@@ -226,7 +226,7 @@ fn shape_gradient(n: usize, xi: Vec3, size: Vec3) -> Vec3 {
 }
 
 /// The 2×2×2 Gauss points in `[0, 1]³` (each with weight 1/8 of the cell volume).
-fn gauss_points() -> [Vec3; 8] {
+pub(crate) fn gauss_points() -> [Vec3; 8] {
     let g = 0.5 / 3f64.sqrt();
     let p = [0.5 - g, 0.5 + g];
     std::array::from_fn(|c| {

@@ -102,12 +102,24 @@ struct Report {
     condense_recursive: Timing,
     direct_speedup: f64,
     condense_max_rel_diff: f64,
+    /// Composite stiffness (`incise_grid::composite`) of every top-level element, from scratch.
+    composite_ms: f64,
+    composite: Timing,
+    /// Incompatible-mode stiffness (`incise_grid::incompatible`) of every top-level element.
+    incompatible_ms: f64,
+    incompatible: Timing,
     cut_voxels: usize,
     cut500_update_ms: f64,
     cut500_update: Timing,
     cut500_rebuild_ms: f64,
     cut500_rebuild: Timing,
     cut500_speedup: f64,
+    /// Incompatible modes of the elements the stroke touched (`cut500_matrices_updated` of
+    /// them), added to `cut500_update_ms` when the grid runs incompatible-mode elements.
+    cut500_incompatible_ms: f64,
+    /// The cut grid's composite stiffness from scratch: what the stroke costs composite elements
+    /// until they are updated locally.
+    cut500_composite_ms: f64,
     cut500_elements_added: usize,
     cut500_elements_removed: usize,
     cut500_matrices_updated: usize,
@@ -229,6 +241,16 @@ pub fn run(args: &GridArgs) -> anyhow::Result<()> {
             .max(mat8_frobenius_diff(&d.mass, &r.mass) / mat8_frobenius(&r.mass));
     }
     drop(rec);
+    let (composite, _) = measure(
+        repeats.div_ceil(3),
+        || (),
+        |()| incise_grid::composite::composite_stiffness(&grid),
+    );
+    let (incompatible, _) = measure(
+        repeats.div_ceil(3),
+        || (),
+        |()| incise_grid::incompatible::incompatible_stiffness(&grid),
+    );
     bar.inc(1);
 
     bar.set_message("cut stroke: incremental update vs rebuild");
@@ -244,6 +266,22 @@ pub fn run(args: &GridArgs) -> anyhow::Result<()> {
     );
     let changes = changes?;
     let (rebuild, rebuilt) = measure(repeats, || (), |()| cut_grid.rebuild());
+    // Incompatible modes depend on each element's own voxels: the elements the cut touched get
+    // them again.
+    let touched = &changes.matrices_updated;
+    let (cut_incompatible, _) = measure(repeats, Vec::new, |mut buffer| {
+        touched
+            .iter()
+            .map(|&id| incise_grid::incompatible::element_stiffness(&cut_grid, id, &mut buffer))
+            .count()
+    });
+    // Composite elements are not updated locally yet: what a cut costs them today is every
+    // element's composite stiffness again.
+    let (cut_composite, _) = measure(
+        repeats.div_ceil(3),
+        || (),
+        |()| incise_grid::composite::composite_stiffness(&cut_grid),
+    );
     let cmp = compare_grids(&cut_grid, &rebuilt, 1e-12);
     if let Err(e) = &cmp {
         eprintln!("incremental update differs from rebuild: {e}");
@@ -286,10 +324,16 @@ pub fn run(args: &GridArgs) -> anyhow::Result<()> {
         direct_speedup: recursive.median_ms / direct.median_ms,
         condense_recursive: recursive,
         condense_max_rel_diff: max_diff,
+        composite_ms: composite.median_ms,
+        composite,
+        incompatible_ms: incompatible.median_ms,
+        incompatible,
         cut_voxels: stroke.len(),
         cut500_update_ms: update.median_ms,
         cut500_rebuild_ms: rebuild.median_ms,
         cut500_speedup: rebuild.median_ms / update.median_ms,
+        cut500_composite_ms: cut_composite.median_ms,
+        cut500_incompatible_ms: cut_incompatible.median_ms,
         cut500_update: update,
         cut500_rebuild: rebuild,
         cut500_elements_added: changes.top.elements_added.len(),
@@ -369,8 +413,18 @@ fn print_table(r: &Report) {
         &r.condense_direct,
     );
     row("recursive condensation (eq. 1), all levels", &r.condense_recursive);
+    row("composite stiffness, all levels", &r.composite);
+    row("incompatible-mode stiffness, all elements", &r.incompatible);
     row(&format!("cut stroke of {} voxels: incremental update", r.cut_voxels), &r.cut500_update);
     row("cut stroke: rebuild from scratch", &r.cut500_rebuild);
+    println!(
+        "  {:<52} {:>10.3}",
+        "cut stroke: incompatible modes of touched elements", r.cut500_incompatible_ms
+    );
+    println!(
+        "  {:<52} {:>10.3}",
+        "cut stroke: composite stiffness again, all elements", r.cut500_composite_ms
+    );
     println!(
         "  {:<52} {:>10.3}",
         format!("separation stroke, {} links severed: update", r.sever500_links),

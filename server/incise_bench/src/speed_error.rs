@@ -102,6 +102,12 @@ pub struct SpeedErrorArgs {
     /// Levels of the 13,648-voxel liver to run (each against its level-0 static solve).
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     liver_levels: Vec<u32>,
+    /// Element kinds of the liver's coarse levels, comma-separated: `condensed` (the Galerkin
+    /// product of the voxels, Jeřábková 2010 eq. 1–4), `composite` (the points of a cell that no
+    /// other element uses relaxed to least energy, `incise_grid::composite`) and `incompatible`
+    /// (nine internal bubble modes condensed out, `incise_grid::incompatible`).
+    #[arg(long, value_delimiter = ',', default_value = "condensed,composite,incompatible")]
+    elements: Vec<String>,
     /// Also solve the 109,201-voxel liver at level 0 (364,668 unknowns: about 40 s linear and
     /// 5 minutes corotational on a 2-core machine), so that the liver-109k rows get an error.
     #[arg(long)]
@@ -170,6 +176,9 @@ struct OursAtEqualError {
 struct Row {
     scene: String,
     model: &'static str,
+    /// How the hexahedra's stiffness was made from the voxels: `condensed`, `composite`,
+    /// `incompatible` (`tetrahedra` for the tensor-mass rows).
+    element: &'static str,
     integrator: &'static str,
     solver: &'static str,
     resolution: String,
@@ -213,6 +222,8 @@ struct Case {
     scene: String,
     resolution: String,
     level: u32,
+    /// `condensed`, `composite` or `incompatible` (see [`Row::element`]).
+    element: &'static str,
     model: HexModel,
     fixed: FixedNodes,
     loads: Loads,
@@ -291,6 +302,7 @@ fn case_of(
         scene: name.into(),
         resolution,
         level: simulation.config().level().context("a hexahedral scene runs on a level")?,
+        element: "condensed",
         model: model.clone(),
         fixed: simulation.fixed().clone(),
         loads: loads.clone(),
@@ -374,15 +386,47 @@ fn liver_case(
     supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
     level: u32,
 ) -> anyhow::Result<Case> {
+    liver_case_of(name, supported, level, "condensed")
+}
+
+/// The element kind `--elements` names, as the rows spell it.
+fn element_kind(name: &str) -> Option<&'static str> {
+    ["condensed", "composite", "incompatible"].into_iter().find(|&k| k == name)
+}
+
+/// [`liver_case`] with elements of kind `element` (see [`element_kind`]).
+fn liver_case_of(
+    name: &str,
+    supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
+    level: u32,
+    element: &'static str,
+) -> anyhow::Result<Case> {
     let (config, volume, stride) = supported;
     let mut config = config.clone();
     at_level(&mut config, level);
     let simulation = Simulation::new(&config, volume, &config.name)?;
+    let mut case = liver_case_with(name, stride, &config, &simulation)?;
+    let grid = simulation.grid().context("a hexahedral scene has a grid")?;
+    match element {
+        "composite" => case.model = HexModel::from_grid_composite(grid),
+        "incompatible" => case.model = HexModel::from_grid_incompatible(grid),
+        _ => {}
+    }
+    case.element = element;
+    Ok(case)
+}
+
+fn liver_case_with(
+    name: &str,
+    stride: &[usize; 3],
+    config: &SceneConfig,
+    simulation: &Simulation,
+) -> anyhow::Result<Case> {
     case_of(
         name,
         format!("stride {},{},{}", stride[0], stride[1], stride[2]),
-        &config,
-        &simulation,
+        config,
+        simulation,
         Probe::CentreOfMass,
         vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
     )
@@ -863,6 +907,11 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     } else {
         args.scene.split(',').map(|s| s.trim().to_lowercase()).collect()
     };
+    if let Some(bad) = args.elements.iter().find(|e| element_kind(e).is_none()) {
+        bail!(
+            "--elements: unknown element kind {bad:?}; expected condensed, composite or incompatible"
+        );
+    }
     // Read before the scenes and references are built, so a bad file fails at once.
     let peer_points: Option<Vec<crate::peers::PeerPoint>> = if args.peers.is_empty() {
         None
@@ -890,7 +939,13 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             "liver" => {
                 let small = supported_volume(&args.scene_dir, "liver_13k.toml")?;
                 for &level in &args.liver_levels {
-                    cases.push(liver_case("liver-13k", &small, level)?);
+                    for element in args.elements.iter().filter_map(|e| element_kind(e)) {
+                        // Level 0's elements are voxels: there is nothing inside them to relax.
+                        if level == 0 && element != "condensed" {
+                            continue;
+                        }
+                        cases.push(liver_case_of("liver-13k", &small, level, element)?);
+                    }
                 }
                 liver_13k = Some(small);
                 let large = supported_volume(&args.scene_dir, "liver_109k.toml")?;
@@ -996,6 +1051,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                     let error = outcome.settled.then(|| error_of(outcome.value)).flatten();
                     rows.push(Row {
                         scene: case.scene.clone(),
+                        element: case.element,
                         model: if formulation == Formulation::Linear {
                             "linear-hex"
                         } else {
@@ -1331,6 +1387,7 @@ fn tensor_mass_rows(
             };
             rows.push(Row {
                 scene: case.scene.clone(),
+                element: "tetrahedra",
                 model: name,
                 integrator: "explicit",
                 solver: "-",
@@ -1451,6 +1508,7 @@ fn implicit_tensor_mass_rows(
         });
         rows.push(Row {
             scene: case.scene.clone(),
+            element: "tetrahedra",
             model: name,
             integrator: "implicit-euler",
             solver: "jacobi-cg",
@@ -1476,9 +1534,10 @@ fn implicit_tensor_mass_rows(
 
 fn print_table(rows: &[Row]) {
     println!(
-        "{:<11} {:<18} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9} {:>6}",
+        "{:<11} {:<18} {:<10} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9} {:>6}",
         "scene",
         "model",
+        "element",
         "integrator",
         "solver",
         "resolution",
@@ -1505,9 +1564,10 @@ fn print_table(rows: &[Row]) {
             None => "-".to_string(),
         };
         println!(
-            "{:<11} {:<18} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10.1} {:>10.1} {:>10.1} {:>10} {:>9} {:>9} {:>6}",
+            "{:<11} {:<18} {:<10} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10.1} {:>10.1} {:>10.1} {:>10} {:>9} {:>9} {:>6}",
             r.scene,
             r.model,
+            r.element,
             r.integrator,
             r.solver,
             r.resolution,
@@ -1532,12 +1592,12 @@ fn write_csv(path: &std::path::Path, rows: &[Row]) -> std::io::Result<()> {
     // New columns go at the end, so that scripts reading the older ones by position still work.
     writeln!(
         f,
-        "scene,model,integrator,solver,resolution,level,elements,dofs,dt,steps_per_s,steps_per_s_min,steps_per_s_max,error,stable,error_static,settled,error_abs,trajectory_error,steps_per_s_one_thread"
+        "scene,model,integrator,solver,resolution,level,elements,dofs,dt,steps_per_s,steps_per_s_min,steps_per_s_max,error,stable,error_static,settled,error_abs,trajectory_error,steps_per_s_one_thread,element"
     )?;
     for r in rows {
         writeln!(
             f,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.scene,
             r.model,
             r.integrator,
@@ -1557,6 +1617,7 @@ fn write_csv(path: &std::path::Path, rows: &[Row]) -> std::io::Result<()> {
             opt(r.error_abs),
             opt(r.trajectory_error),
             opt(r.steps_per_s_one_thread),
+            r.element,
         )?;
     }
     Ok(())

@@ -45,6 +45,10 @@ fn grid_report_json_has_the_contract_keys() {
         "cut500_update_ms",
         "cut500_rebuild_ms",
         "incremental_equals_rebuild",
+        "composite_ms",
+        "incompatible_ms",
+        "cut500_incompatible_ms",
+        "cut500_composite_ms",
     ] {
         assert!(j.get(key).is_some(), "missing key {key} in {j}");
     }
@@ -122,6 +126,7 @@ fn bad_input_gets_a_clear_error() {
         "--fine-references",
         "--richardson-cells",
         "--no-richardson",
+        "--elements",
     ] {
         assert!(help.contains(flag), "speed-error --help lists {flag}:\n{help}");
     }
@@ -136,6 +141,13 @@ fn bad_input_gets_a_clear_error() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--richardson-cells") && err.contains("finer"), "{err}");
+
+    // An element kind the report does not know is named, with the kinds it does.
+    let out =
+        bench().args(["speed-error", "--scene", "b1", "--elements", "quadratic"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("\"quadratic\"") && err.contains("composite"), "{err}");
 }
 
 #[test]
@@ -359,9 +371,14 @@ fn speed_error_b2_moving_reports_trajectory_errors() {
     let text = std::fs::read_to_string(&csv).unwrap();
     let header = text.lines().next().unwrap();
     assert!(
-        header.ends_with(",error_abs,trajectory_error,steps_per_s_one_thread"),
-        "new columns at the end: {header}"
+        header.starts_with(
+            "scene,model,integrator,solver,resolution,level,elements,dofs,dt,steps_per_s,steps_per_s_min,steps_per_s_max,error,stable,error_static,settled,error_abs,trajectory_error,steps_per_s_one_thread,"
+        ) && header.ends_with(",element"),
+        "older columns keep their places, new ones go at the end: {header}"
     );
+    for r in rows {
+        assert_eq!(r["element"], "condensed", "{r}");
+    }
     assert_eq!(text.lines().count(), 1 + rows.len());
     std::fs::remove_file(&csv).ok();
 }

@@ -328,6 +328,7 @@ pub(super) fn rows(
             rows.push(Row {
                 scene: SCENE.into(),
                 model: name,
+                element: "condensed",
                 integrator,
                 solver,
                 resolution: "11x8x6".into(),

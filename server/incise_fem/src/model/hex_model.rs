@@ -294,6 +294,42 @@ impl HexModel {
         model
     }
 
+    /// The same grid with composite elements: every element's stiffness condensed statically
+    /// onto its corners, the points inside it free ([`incise_grid::composite`]); masses stay
+    /// condensed.
+    ///
+    /// # Panics
+    /// Only on a broken grid invariant (a live element without a stiffness).
+    #[must_use]
+    pub fn from_grid_composite(grid: &BranchedGrid) -> Self {
+        let mut model = Self::from_grid(grid);
+        let composite = incise_grid::composite::composite_stiffness(grid);
+        let mut shared = SharedMatrices::default();
+        for e in &mut model.elements {
+            let k = composite[e.grid_id as usize].as_ref().expect("live element has a stiffness");
+            e.stiffness = shared.get(k.symmetrized());
+        }
+        model
+    }
+
+    /// The same grid with incompatible-mode elements: every element's condensed stiffness
+    /// enriched with nine internal bubble modes, condensed out ([`incise_grid::incompatible`]);
+    /// masses stay condensed.
+    ///
+    /// # Panics
+    /// Only on a broken grid invariant (a live element without a stiffness).
+    #[must_use]
+    pub fn from_grid_incompatible(grid: &BranchedGrid) -> Self {
+        let mut model = Self::from_grid(grid);
+        let enriched = incise_grid::incompatible::incompatible_stiffness(grid);
+        let mut shared = SharedMatrices::default();
+        for e in &mut model.elements {
+            let k = enriched[e.grid_id as usize].as_ref().expect("live element has a stiffness");
+            e.stiffness = shared.get(k.symmetrized());
+        }
+        model
+    }
+
     /// `out += scale · M p` with the condensed consistent mass (`Mₑ ⊗ I₃` per element), summed
     /// in element order.
     pub fn add_consistent_mass_times(&self, scale: f64, p: &[Vec3], out: &mut [Vec3]) {

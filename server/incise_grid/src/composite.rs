@@ -148,59 +148,9 @@ fn condense_onto_corners(children: &[Placed<'_>]) -> Mat24 {
             }
         }
     }
-    // K_ff = L Lᵀ, semi-definite: a pivot that vanishes marks a zero-energy direction of the free
-    // points (a piece hanging from one point turning about it); `K_fb T`'s columns have no
-    // component along it, as `K` is positive semi-definite, so its column is dropped and the
-    // solve sets it to zero.
-    let diag: Vec<f64> = (0..nfd).map(|r| kff[r * nfd + r]).collect();
-    let mut null = vec![false; nfd];
-    for j in 0..nfd {
-        let mut d = kff[j * nfd + j];
-        for k in 0..j {
-            d -= kff[j * nfd + k] * kff[j * nfd + k];
-        }
-        if d <= NULL_PIVOT * diag[j] || d <= 0.0 {
-            null[j] = true;
-            for r in j..nfd {
-                kff[r * nfd + j] = 0.0;
-            }
-            continue;
-        }
-        let l = d.sqrt();
-        kff[j * nfd + j] = l;
-        for r in j + 1..nfd {
-            let mut s = kff[r * nfd + j];
-            for k in 0..j {
-                s -= kff[r * nfd + k] * kff[j * nfd + k];
-            }
-            kff[r * nfd + j] = s / l;
-        }
-    }
-    // Y = L⁻¹ K_fb T; then (K_fb T)ᵀ K_ff⁺ (K_fb T) = Yᵀ Y.
-    let mut y = kfb;
-    for col in 0..24 {
-        for r in 0..nfd {
-            if null[r] {
-                y[r * 24 + col] = 0.0;
-                continue;
-            }
-            let mut s = y[r * 24 + col];
-            for k in 0..r {
-                s -= kff[r * nfd + k] * y[k * 24 + col];
-            }
-            y[r * 24 + col] = s / kff[r * nfd + r];
-        }
-    }
-    let mut out = kbb;
-    for a in 0..24 {
-        for b in a..24 {
-            let s: f64 = (0..nfd).map(|r| y[r * 24 + a] * y[r * 24 + b]).sum();
-            let v = 0.5 * (out.0[a * 24 + b] + out.0[b * 24 + a]) - s;
-            out.0[a * 24 + b] = v;
-            out.0[b * 24 + a] = v;
-        }
-    }
-    out
+    // A piece hanging from one point turning about it is a zero-energy direction of the free
+    // points: `schur::complement` drops it.
+    crate::schur::complement(&kbb, kff, kfb, NULL_PIVOT)
 }
 
 /// The composite stiffness of every top-level element of `grid` (indexed by element id), plus

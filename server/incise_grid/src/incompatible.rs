@@ -170,50 +170,7 @@ pub fn element_stiffness(grid: &BranchedGrid, id: u32, voxels: &mut Vec<u32>) ->
             }
         }
     }
-    Some(condense_bubbles(k_uu, k_aa, &k_au))
-}
-
-/// `K_uu − K_αuᵀ K_αα⁻¹ K_αu`, by a Cholesky factor of `K_αα` (a vanishing pivot's bubble is
-/// dropped).
-fn condense_bubbles(k_uu: &Mat24, mut l: [[f64; 9]; 9], k_au: &[[f64; 24]; 9]) -> Mat24 {
-    let diag: [f64; 9] = std::array::from_fn(|i| l[i][i]);
-    let mut null = [false; 9];
-    for j in 0..9 {
-        let d = l[j][j] - (0..j).map(|k| l[j][k] * l[j][k]).sum::<f64>();
-        if d <= NULL_PIVOT * diag[j] || d <= 0.0 {
-            null[j] = true;
-            for row in l.iter_mut().skip(j) {
-                row[j] = 0.0;
-            }
-            continue;
-        }
-        let p = d.sqrt();
-        l[j][j] = p;
-        for r in j + 1..9 {
-            let s = l[r][j] - (0..j).map(|k| l[r][k] * l[j][k]).sum::<f64>();
-            l[r][j] = s / p;
-        }
-    }
-    // Y = L⁻¹ K_αu; the correction is Yᵀ Y.
-    let mut y = *k_au;
-    for c in 0..24 {
-        for r in 0..9 {
-            if null[r] {
-                y[r][c] = 0.0;
-                continue;
-            }
-            let s = y[r][c] - (0..r).map(|k| l[r][k] * y[k][c]).sum::<f64>();
-            y[r][c] = s / l[r][r];
-        }
-    }
-    let mut out = k_uu.clone();
-    for a in 0..24 {
-        for b in a..24 {
-            let s: f64 = (0..9).map(|r| y[r][a] * y[r][b]).sum();
-            let v = 0.5 * (out.0[a * 24 + b] + out.0[b * 24 + a]) - s;
-            out.0[a * 24 + b] = v;
-            out.0[b * 24 + a] = v;
-        }
-    }
-    out
+    let flat = |rows: &[[f64; 24]; 9]| rows.iter().flatten().copied().collect::<Vec<f64>>();
+    let k_aa: Vec<f64> = k_aa.iter().flatten().copied().collect();
+    Some(crate::schur::complement(k_uu, k_aa, flat(&k_au), NULL_PIVOT))
 }

@@ -14,6 +14,7 @@ pub mod hex8;
 pub mod incompatible;
 pub mod material;
 pub mod procedural;
+mod schur;
 pub mod topology;
 pub mod volume;
 

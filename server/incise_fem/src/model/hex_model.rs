@@ -302,14 +302,7 @@ impl HexModel {
     /// Only on a broken grid invariant (a live element without a stiffness).
     #[must_use]
     pub fn from_grid_composite(grid: &BranchedGrid) -> Self {
-        let mut model = Self::from_grid(grid);
-        let composite = incise_grid::composite::composite_stiffness(grid);
-        let mut shared = SharedMatrices::default();
-        for e in &mut model.elements {
-            let k = composite[e.grid_id as usize].as_ref().expect("live element has a stiffness");
-            e.stiffness = shared.get(k.symmetrized());
-        }
-        model
+        Self::from_grid_with_stiffness(grid, &incise_grid::composite::composite_stiffness(grid))
     }
 
     /// The same grid with incompatible-mode elements: every element's condensed stiffness
@@ -320,11 +313,21 @@ impl HexModel {
     /// Only on a broken grid invariant (a live element without a stiffness).
     #[must_use]
     pub fn from_grid_incompatible(grid: &BranchedGrid) -> Self {
+        Self::from_grid_with_stiffness(
+            grid,
+            &incise_grid::incompatible::incompatible_stiffness(grid),
+        )
+    }
+
+    /// The grid's model with each element's stiffness taken from `stiffness` (by grid id).
+    fn from_grid_with_stiffness(
+        grid: &BranchedGrid,
+        stiffness: &[Option<incise_grid::hex8::Mat24>],
+    ) -> Self {
         let mut model = Self::from_grid(grid);
-        let enriched = incise_grid::incompatible::incompatible_stiffness(grid);
         let mut shared = SharedMatrices::default();
         for e in &mut model.elements {
-            let k = enriched[e.grid_id as usize].as_ref().expect("live element has a stiffness");
+            let k = stiffness[e.grid_id as usize].as_ref().expect("live element has a stiffness");
             e.stiffness = shared.get(k.symmetrized());
         }
         model

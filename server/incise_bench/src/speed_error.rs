@@ -405,31 +405,22 @@ fn liver_case_of(
     let mut config = config.clone();
     at_level(&mut config, level);
     let simulation = Simulation::new(&config, volume, &config.name)?;
-    let mut case = liver_case_with(name, stride, &config, &simulation)?;
-    let grid = simulation.grid().context("a hexahedral scene has a grid")?;
+    let mut case = case_of(
+        name,
+        format!("stride {},{},{}", stride[0], stride[1], stride[2]),
+        &config,
+        &simulation,
+        Probe::CentreOfMass,
+        vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
+    )?;
+    let grid = || simulation.grid().context("a hexahedral scene has a grid");
     match element {
-        "composite" => case.model = HexModel::from_grid_composite(grid),
-        "incompatible" => case.model = HexModel::from_grid_incompatible(grid),
+        "composite" => case.model = HexModel::from_grid_composite(grid()?),
+        "incompatible" => case.model = HexModel::from_grid_incompatible(grid()?),
         _ => {}
     }
     case.element = element;
     Ok(case)
-}
-
-fn liver_case_with(
-    name: &str,
-    stride: &[usize; 3],
-    config: &SceneConfig,
-    simulation: &Simulation,
-) -> anyhow::Result<Case> {
-    case_of(
-        name,
-        format!("stride {},{},{}", stride[0], stride[1], stride[2]),
-        config,
-        simulation,
-        Probe::CentreOfMass,
-        vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
-    )
 }
 
 /// The scene `file`, and its filtered, strided volume with only the voxels connected (through

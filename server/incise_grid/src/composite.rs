@@ -193,12 +193,13 @@ pub fn composite_stiffness(grid: &BranchedGrid) -> Vec<Option<Mat24>> {
                 let mut private = 0u32;
                 for p in 0..27u32 {
                     let at = [2 * cc[0] + p % 3, 2 * cc[1] + (p / 3) % 3, 2 * cc[2] + p / 9];
+                    // The (up to) eight voxels around the point, each empty or this element's.
                     let alone = (0..8).all(|d| {
                         let b = corner(d);
-                        let q: Option<Vec<u32>> = (0..3)
-                            .map(|a| at[a].checked_sub(b[a] as u32).filter(|&q| q < dims[a]))
-                            .collect();
-                        let Some(q) = q else { return true };
+                        let q: [u32; 3] = std::array::from_fn(|a| at[a].wrapping_sub(b[a] as u32));
+                        if (0..3).any(|a| q[a] >= dims[a]) {
+                            return true;
+                        }
                         let v = q[0] + dims[0] * (q[1] + dims[1] * q[2]);
                         fine.material(v).is_none() || e.children.contains(&v)
                     });

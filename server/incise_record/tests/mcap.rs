@@ -52,15 +52,17 @@ fn cut(i: u64) -> v1::CutEvent {
     v1::CutEvent { frame: i, tool_id: 0, voxels_removed: 3, ..Default::default() }
 }
 
-fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("incise_record_{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A file `name` in a fresh directory that is removed with the returned guard (also when the
+/// test fails).
+fn temp(name: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::Builder::new().prefix("incise_record_").tempdir().unwrap();
+    let path = dir.path().join(name);
+    (dir, path)
 }
 
 /// 600 frames and 3 cuts through the recorder thread, written to `name` and read back.
 fn recorded(name: &str) -> (Vec<u8>, Vec<v1::FrameRecord>) {
-    let path = temp(name);
+    let (_dir, path) = temp(name);
     let recorder = Recorder::start(McapRecording::create(&path, &session()).unwrap()).unwrap();
     let handle = recorder.handle();
     let frames: Vec<_> = (0..600).map(frame).collect();
@@ -108,7 +110,7 @@ fn a_recording_reads_back_whole_with_its_scene_metadata_and_schemas() {
 /// next, still open. Everything up to the closed chunk reads back.
 #[test]
 fn frames_in_closed_chunks_survive_a_crash() {
-    let path = temp("crash.mcap");
+    let (_dir, path) = temp("crash.mcap");
     let mut recording = McapRecording::create(&path, &session()).unwrap();
     for i in 0..100 {
         recording.frame(&frame(i)).unwrap();

@@ -216,7 +216,16 @@ struct Certificates {
 
 static CERTIFICATES: LazyLock<Certificates> = LazyLock::new(|| {
     use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, DnType, IsCa, KeyPair};
-    let dir = std::env::temp_dir().join(format!("incise-deploy-tls-{}", std::process::id()));
+    // Under the build's scratch directory, one folder per test process. A static is never
+    // dropped, so each run leaves its folder behind; those of processes that are gone are
+    // removed here.
+    let root = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("deploy-tls");
+    for stale in std::fs::read_dir(&root).into_iter().flatten().flatten() {
+        if !std::path::Path::new("/proc").join(stale.file_name()).exists() {
+            let _ = std::fs::remove_dir_all(stale.path());
+        }
+    }
+    let dir = root.join(std::process::id().to_string());
     std::fs::create_dir_all(&dir).unwrap();
     let authority = |name: &str| {
         let mut p = CertificateParams::new(Vec::<String>::new()).unwrap();

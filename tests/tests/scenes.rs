@@ -2,7 +2,7 @@
 //! `incise_sim::Simulation`, and the errors a broken scene file gets.
 
 use incise_math::Vec3;
-use incise_sim::config::{HexSpec, Level, Model};
+use incise_sim::config::{ElementKind, HexSpec, Level, Model};
 use incise_sim::{InputError, SceneConfig, Simulation, StepInputs};
 use incise_tests::scene;
 
@@ -203,21 +203,44 @@ fn auto_model_runs_on_the_coarsest_level_within_its_error() {
     let c = sim.calibration().expect("auto scenes calibrate");
     for l in &c.levels {
         println!(
-            "level {} {:>6} elements {:>6} dofs  estimated error {:6.2} %",
+            "level {} {:<12} {:>6} elements {:>6} dofs  estimated error {:6.2} %",
             l.level,
+            l.element.name(),
             l.elements,
             l.dofs,
             100.0 * l.error
         );
     }
-    println!("chosen level {} (max_error {} %)", c.chosen, 100.0 * c.max_error);
+    println!(
+        "chosen level {} with {} elements (max_error {} %)",
+        c.chosen,
+        c.chosen_element.name(),
+        100.0 * c.max_error
+    );
     assert_eq!(c.reference_level, 0, "level 0 of the 13k liver is affordable");
     assert!(c.chosen > 0, "the scene's 40 % bound admits a coarser level");
     assert_eq!(sim.config().level(), Some(c.chosen));
-    let chosen = c.levels.iter().find(|l| l.level == c.chosen).unwrap();
+    let Model::Hexahedra(hex) = &sim.config().model else { panic!("hexahedra") };
+    assert_eq!(hex.element, c.chosen_element, "the scene runs the chosen kind");
+    // Every kind at every coarse level, one model at level 0 (the kinds coincide there).
+    for level in 1..=3 {
+        let kinds: Vec<_> =
+            c.levels.iter().filter(|l| l.level == level).map(|l| l.element).collect();
+        assert_eq!(kinds, ElementKind::ALL, "level {level}");
+    }
+    let chosen =
+        c.levels.iter().find(|l| (l.level, l.element) == (c.chosen, c.chosen_element)).unwrap();
     assert!(chosen.error <= c.max_error);
-    // The coarsest within the error: every coarser level misses it.
+    // The coarsest within the error: every kind at every coarser level misses it, and so does
+    // every kind before the chosen one at its level (the cheaper ones to cut).
     assert!(c.levels.iter().filter(|l| l.level > c.chosen).all(|l| l.error > c.max_error));
+    let before = ElementKind::ALL.iter().position(|&k| k == c.chosen_element).unwrap();
+    assert!(
+        c.levels
+            .iter()
+            .filter(|l| l.level == c.chosen && ElementKind::ALL[..before].contains(&l.element))
+            .all(|l| l.error > c.max_error)
+    );
     assert!(c.levels.iter().any(|l| l.level == 0 && l.error == 0.0));
     // A looser bound never picks a finer level.
     let path = scene("liver_auto.toml");
@@ -227,11 +250,30 @@ fn auto_model_runs_on_the_coarsest_level_within_its_error() {
             panic!("liver_auto.toml chooses its level")
         };
         auto.max_error = max_error;
-        Simulation::new(&config, &geometry, &path.display().to_string()).unwrap().config().level()
+        let sim = Simulation::new(&config, &geometry, &path.display().to_string()).unwrap();
+        let Model::Hexahedra(hex) = &sim.config().model else { panic!("hexahedra") };
+        (sim.config().level().unwrap(), hex.element)
     };
-    assert!(bound(0.95) >= Some(c.chosen));
+    assert!(bound(0.95).0 >= c.chosen);
+    // A bound that at some level only an enriched kind meets, and no coarser level does: the
+    // scene runs that kind there.
+    let error_of = |level: u32, kind: ElementKind| {
+        c.levels.iter().find(|l| (l.level, l.element) == (level, kind)).unwrap().error
+    };
+    let (level, kind, error) = (1..=3)
+        .rev()
+        .flat_map(|level| {
+            ElementKind::ALL[1..].iter().map(move |&kind| (level, kind, error_of(level, kind)))
+        })
+        .find(|&(level, _, error)| {
+            error < error_of(level, ElementKind::Condensed)
+                && c.levels.iter().filter(|l| l.level > level).all(|l| l.error > error)
+        })
+        .expect("an enriched kind beats the condensed one somewhere");
+    assert_eq!(bound(error), (level, kind), "bound {error}");
+    println!("max_error {:.2} % runs level {level} with {} elements", 100.0 * error, kind.name());
     // And a tight one runs on the reference level.
-    assert_eq!(bound(1e-3), Some(0));
+    assert_eq!(bound(1e-3).0, 0);
 }
 
 #[test]
@@ -847,4 +889,62 @@ fn the_block_cut_scene_alone_reproduces_its_cut() {
     assert_eq!(cut_early, 0, "no cut while it only presses");
     assert!(removed > 50, "the stroke cuts");
     assert_eq!(run().3, hash, "the scene replays bit for bit");
+}
+
+#[test]
+fn a_scene_runs_and_cuts_with_each_element_kind() {
+    let text = GOOD
+        .replace("voxels = [2, 2, 2]", "voxels = [8, 8, 8]")
+        .replace("[volume]", "level = 2\n[volume]");
+    let mut sags = Vec::new();
+    for kind in ElementKind::ALL {
+        let text = text.replace(
+            "[integrator]",
+            &format!(
+                "[model]\nkind = \"corotational\"\nelement = \"{}\"\n[integrator]",
+                kind.name()
+            ),
+        );
+        let config = SceneConfig::from_toml(&text, "k.toml").unwrap_or_else(|e| panic!("{e}"));
+        let volume = config.procedural_volume().unwrap();
+        let mut sim = Simulation::new(&config, &volume, "k.toml").unwrap();
+        let same_stiffness = |sim: &Simulation| {
+            let rebuilt = incise_fem::HexModel::from_grid_of_kind(sim.grid().unwrap(), kind);
+            let model = sim.model().unwrap();
+            assert_eq!(model.element, kind);
+            model.elements.len() == rebuilt.elements.len()
+                && model.elements.iter().zip(&rebuilt.elements).all(|(a, b)| {
+                    a.stiffness
+                        .0
+                        .iter()
+                        .zip(&b.stiffness.0)
+                        .all(|(x, y)| x.to_bits() == y.to_bits())
+                })
+        };
+        assert!(same_stiffness(&sim), "{}", kind.name());
+        for _ in 0..20 {
+            sim.step(&StepInputs::default()).unwrap();
+        }
+        // A slab off one corner: re-condenses the elements it crosses.
+        let dims = sim.grid().unwrap().fine().dims();
+        let slab: Vec<u32> = (0..dims[2])
+            .flat_map(|z| {
+                (0..3).flat_map(move |y| (0..2).map(move |x| x + dims[0] * (y + dims[1] * z)))
+            })
+            .collect();
+        let changes =
+            sim.cut(&incise_grid::GridEdit { remove_voxels: slab, sever_links: vec![] }).unwrap();
+        assert!(changes.voxels_removed > 0);
+        assert!(same_stiffness(&sim), "{} after the cut", kind.name());
+        for _ in 0..20 {
+            sim.step(&StepInputs::default()).unwrap();
+        }
+        let model = sim.model().unwrap();
+        let sag = model.centre_of_mass_shift(&sim.state().x)[2];
+        assert!(sag.is_finite() && sag < 0.0, "{}: {sag}", kind.name());
+        sags.push(sag);
+    }
+    // The kinds are different models: the enriched ones are softer than the condensed one.
+    println!("centre of mass after 40 ms (condensed, incompatible, composite): {sags:?}");
+    assert!(sags[1] < sags[0] && sags[2] < sags[0], "{sags:?}");
 }

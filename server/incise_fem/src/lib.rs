@@ -31,4 +31,4 @@ pub mod ode;
 pub use constraint::FixedNodes;
 pub use exec::{Executor, Idle};
 pub use forcefield::hex::{Formulation, HexForceField};
-pub use model::{HexModel, Loads, State};
+pub use model::{ElementKind, HexModel, Loads, State};

@@ -1,19 +1,24 @@
 //! A cut carried in place (`HexModel::update`, `State::carry`, `HexForceField::remap`) gives the
 //! same bits as the model rebuilt from the grid, the state carried from the old model to the new
 //! (`State::across_cut`) and the field remapped onto a copy (`HexForceField::remapped`), through
-//! cuts that split elements, add and remove nodes, and keep every node.
+//! cuts that split elements, add and remove nodes, and keep every node; with each kind of
+//! element.
 
 use incise_fem::forcefield::hex::Formulation;
 use incise_fem::linsolve::cg::CgSettings;
 use incise_fem::model::{Loads, State};
 use incise_fem::ode::{BackwardEuler, Rayleigh};
-use incise_fem::{FixedNodes, HexForceField, HexModel};
+use incise_fem::{ElementKind, FixedNodes, HexForceField, HexModel};
 use incise_grid::procedural::{TISSUE, TUMOUR, ellipsoid_with_inclusion};
 use incise_grid::{BranchedGrid, GridEdit, Material, MaterialTable};
 use incise_math::Vec3;
 
 fn bits(v: &[Vec3]) -> Vec<u64> {
     v.iter().flatten().map(|x| x.to_bits()).collect()
+}
+
+fn bits_of(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
 }
 
 fn assert_same_model(a: &HexModel, b: &HexModel, what: &str) {
@@ -32,12 +37,27 @@ fn assert_same_model(a: &HexModel, b: &HexModel, what: &str) {
 
 #[test]
 fn a_cut_in_place_equals_a_cut_on_copies() {
+    cut_in_place_equals_cut_on_copies(ElementKind::Condensed);
+}
+
+#[test]
+fn a_cut_in_place_equals_a_cut_on_copies_with_incompatible_modes() {
+    cut_in_place_equals_cut_on_copies(ElementKind::Incompatible);
+}
+
+#[test]
+fn a_cut_in_place_equals_a_cut_on_copies_with_composite_cells() {
+    cut_in_place_equals_cut_on_copies(ElementKind::Composite);
+}
+
+fn cut_in_place_equals_cut_on_copies(kind: ElementKind) {
     let v = ellipsoid_with_inclusion(24, 5e-3);
     let mut table = MaterialTable::new();
     table.insert(TISSUE, Material::new(3e3, 0.45, 1000.0));
     table.insert(TUMOUR, Material::new(3e4, 0.45, 1000.0));
     let mut grid = BranchedGrid::build(&v, &table, 2).unwrap();
-    let mut model = HexModel::from_grid(&grid);
+    let mut model = HexModel::from_grid_of_kind(&grid, kind);
+    assert_eq!(model.element, kind);
     let mut ff = HexForceField::new(&model, Formulation::Corotational);
     let mut state = State::at_rest(&model);
     let dims = grid.fine().dims();
@@ -72,6 +92,7 @@ fn a_cut_in_place_equals_a_cut_on_copies() {
     let mut be =
         BackwardEuler::new(1e-2, Rayleigh { alpha: 1.0, beta: 0.01 }, CgSettings::default());
     let (mut node_moves, mut element_moves, mut node_keeps) = (0, 0, 0);
+    let mut enriched = 0;
     for (k, edit) in edits.iter().enumerate() {
         // Some motion first, so that rotations and velocities are not trivial.
         let fixed = FixedNodes::by_position(&model.rest, |p| p[2] < 0.03);
@@ -89,7 +110,24 @@ fn a_cut_in_place_equals_a_cut_on_copies() {
 
         let renumbering = model.update(&grid, &changes);
         assert_same_model(&model, &copy, &what);
-        assert_same_model(&model, &HexModel::from_grid(&grid), &what);
+        let rebuilt = HexModel::from_grid_of_kind(&grid, kind);
+        assert_same_model(&model, &rebuilt, &what);
+        // The enriched kinds kept to themselves: the cut elements' stiffnesses are not the
+        // condensed ones the grid holds.
+        let condensed = HexModel::from_grid(&grid);
+        let differ = renumbering
+            .new_matrices
+            .iter()
+            .filter(|&&i| {
+                let i = i as usize;
+                bits_of(&model.elements[i].stiffness.0)
+                    != bits_of(&condensed.elements[i].stiffness.0)
+            })
+            .count();
+        if kind == ElementKind::Condensed {
+            assert_eq!(differ, 0, "{what}");
+        }
+        enriched += differ;
         for (i, before) in renumbering.node_before.iter().enumerate() {
             if let Some(j) = before {
                 assert_eq!(renumbering.grid_node_before[*j as usize], model.grid_node[i], "{what}");
@@ -148,4 +186,7 @@ fn a_cut_in_place_equals_a_cut_on_copies() {
         }
     }
     assert!(node_moves > 0 && node_keeps > 0 && element_moves > 0, "{node_moves} {node_keeps}");
+    if kind != ElementKind::Condensed {
+        assert!(enriched > 0, "every re-made stiffness was the condensed one");
+    }
 }

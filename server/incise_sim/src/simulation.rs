@@ -5,9 +5,9 @@
 
 use crate::calibration::{Calibration, calibrate};
 use crate::config::{
-    DEFAULT_CG_TOLERANCE, HexSpec, Integrator, LengthUnit, Level, Model, SceneConfig, SceneError,
-    StaticSolver, TensorMassSpec, TetIntegrator, TetSource, ToolContact, VolumeContactSpec,
-    VolumeSpec,
+    DEFAULT_CG_TOLERANCE, ElementKind, HexSpec, Integrator, LengthUnit, Level, Model, SceneConfig,
+    SceneError, StaticSolver, TensorMassSpec, TetIntegrator, TetSource, ToolContact,
+    VolumeContactSpec, VolumeSpec,
 };
 use crate::regions::{
     empty_region_hold, fixed_at, fixed_nodes, missing_label_holds, patch_forces, patch_loads,
@@ -372,19 +372,20 @@ impl Simulation {
         let (body, fixed) = match (&config.model, geometry) {
             (Model::Hexahedra(hex), Geometry::Volume(raw)) => {
                 let volume = prepared(&hex.volume, raw).map_err(build)?;
-                let level = match hex.level {
-                    Level::Fixed(level) => level,
+                let (level, element) = match hex.level {
+                    Level::Fixed(level) => (level, hex.element),
                     Level::Auto(auto) => {
                         // The calibration reads only the scene's holds and loads.
-                        let c = calibrate(&config, &volume, &table, auto, exec)
+                        let c = calibrate(&config, &volume, &table, auto, hex.element, exec)
                             .map_err(|e| build(format!("model.kind = \"auto\": {e}")))?;
-                        let level = c.chosen;
+                        let chosen = (c.chosen, c.chosen_element);
                         calibration = Some(c);
-                        level
+                        chosen
                     }
                 };
                 let (body, fixed) =
-                    hex_body(&config, hex, level, &volume, &table, exec.clone()).map_err(build)?;
+                    hex_body(&config, hex, (level, element), &volume, &table, exec.clone())
+                        .map_err(build)?;
                 (Body::Hex(Box::new(body)), fixed)
             }
             (Model::TensorMass(spec), geometry) => {
@@ -428,6 +429,7 @@ impl Simulation {
         // The configuration a simulation reports is the one it runs: at the level chosen.
         if let (Some(c), Model::Hexahedra(hex)) = (&calibration, &mut config.model) {
             hex.level = Level::Fixed(c.chosen);
+            hex.element = c.chosen_element;
         }
         let state = match &body {
             Body::Hex(hex) => State::at_rest(&hex.model),
@@ -944,17 +946,18 @@ fn in_metres(mesh: &TetMesh, unit: LengthUnit) -> Result<TetMesh, String> {
         .map_err(|e| format!("the mesh in metres: {e}"))
 }
 
-/// Builds the hexahedral mechanics of a scene at grid `level` and its fixed nodes.
+/// Builds the hexahedral mechanics of a scene at grid `level` with elements of kind `element`,
+/// and its fixed nodes.
 fn hex_body(
     config: &SceneConfig,
     hex: &HexSpec,
-    level: u32,
+    (level, element): (u32, ElementKind),
     volume: &LabelVolume,
     table: &MaterialTable,
     exec: Executor,
 ) -> Result<(HexBody, FixedNodes), String> {
     let grid = BranchedGrid::build(volume, table, level).map_err(|e| e.to_string())?;
-    let model = HexModel::from_grid(&grid);
+    let model = HexModel::from_grid_of_kind(&grid, element);
     let force_field = HexForceField::new(&model, hex.formulation).with_executor(exec);
     if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l))
         .or_else(|| empty_region_hold(config, &model.rest, grid.element_size()))

@@ -4,7 +4,8 @@
 use incise_fem::Formulation;
 use incise_fem::ode::{MassMatrix, Rayleigh};
 use incise_sim::config::{
-    AutoLevel, HexSpec, ImplicitSolver, Integrator, Level, Model, StaticSolver, TetIntegrator,
+    AutoLevel, ElementKind, HexSpec, ImplicitSolver, Integrator, Level, Model, StaticSolver,
+    TetIntegrator,
 };
 use incise_sim::{SceneConfig, SceneError};
 
@@ -138,8 +139,9 @@ fn auto_model_keys_are_checked() {
     assert!(matches!(
         SceneConfig::from_toml(&auto, "good.toml").unwrap().model,
         Model::Hexahedra(HexSpec {
-            level: Level::Auto(AutoLevel { max_error: 0.05, max_level: 3 }),
+            level: Level::Auto(AutoLevel { max_error: 0.05, max_level: 3, any_element: true }),
             formulation: Formulation::Corotational,
+            element: ElementKind::Condensed,
             ..
         })
     ));
@@ -151,6 +153,45 @@ fn auto_model_keys_are_checked() {
     assert!(e.to_string().contains("model.max_error") && e.to_string().contains("auto"), "{e}");
     let e = error(&auto.replace("max_error = 0.05", "max_level = 9"));
     assert!(e.to_string().contains("model.max_level"), "{e}");
+    // An element kind given to an auto scene is kept: the calibration then chooses only the
+    // level.
+    assert!(matches!(
+        SceneConfig::from_toml(
+            &auto.replace("max_error", "element = \"composite\"\nmax_error"),
+            "g.toml"
+        )
+        .unwrap()
+        .model,
+        Model::Hexahedra(HexSpec {
+            level: Level::Auto(AutoLevel { any_element: false, .. }),
+            element: ElementKind::Composite,
+            ..
+        })
+    ));
+}
+
+#[test]
+fn the_element_kind_is_a_scene_key() {
+    for kind in ["condensed", "composite", "incompatible"] {
+        let text = GOOD.replace(
+            "[integrator]",
+            &format!("[model]\nkind = \"linear\"\nelement = \"{kind}\"\n[integrator]"),
+        );
+        let Model::Hexahedra(hex) = SceneConfig::from_toml(&text, "g.toml").unwrap().model else {
+            panic!("hexahedra")
+        };
+        assert_eq!(hex.element.name(), kind);
+        assert_eq!(hex.formulation, Formulation::Linear);
+    }
+    let e = error(&GOOD.replace(
+        "[integrator]",
+        "[model]\nkind = \"corotational\"\nelement = \"quadratic\"\n[integrator]",
+    ));
+    let text = e.to_string();
+    assert!(text.starts_with("bad.toml:") && text.contains("model.element"), "{e}");
+    assert!(text.contains("quadratic") && text.contains("incompatible"), "{e}");
+    let e = error(&tensor_mass_scene("element = \"composite\"\n", "1e-4"));
+    assert!(e.to_string().contains("model.element") && e.to_string().contains("tetrahedra"), "{e}");
 }
 
 /// `GOOD` as a tensor-mass scene (48 tetrahedra on 2 × 2 × 2 voxels).

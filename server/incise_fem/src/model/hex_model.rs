@@ -23,6 +23,46 @@ pub struct HexElement {
     pub grid_id: u32,
 }
 
+/// How a coarse element's stiffness is made from the voxels it holds. Masses are the condensed
+/// ones with every kind, so all carry the same load; at level 0 every kind is the voxel's own
+/// stiffness.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum ElementKind {
+    /// The Galerkin condensation of Jeřábková 2010 eq. 1–4. A cut re-condenses the elements whose
+    /// voxels it removed.
+    #[default]
+    Condensed,
+    /// Composite cells after Nesme et al. 2009 ([`incise_grid::composite`]): softer where a cell
+    /// holds a thin neck beside bulk. Which of a cell's points are its own depends on its
+    /// neighbours, so a cut recomputes every element's stiffness.
+    Composite,
+    /// Incompatible modes (Wilson et al. 1973, [`incise_grid::incompatible`]): coarse elements
+    /// that bend without shear locking. Each depends only on its own voxels, so a cut recomputes
+    /// only the elements it re-condenses.
+    Incompatible,
+}
+
+impl ElementKind {
+    /// Every kind, cheapest to cut first.
+    pub const ALL: [Self; 3] = [Self::Condensed, Self::Incompatible, Self::Composite];
+
+    /// The kind's name in scenes and reports.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Condensed => "condensed",
+            Self::Composite => "composite",
+            Self::Incompatible => "incompatible",
+        }
+    }
+
+    /// The kind called `name` ([`ElementKind::name`]).
+    #[must_use]
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == name)
+    }
+}
+
 /// Nodes and elements ready for the force fields and solvers.
 #[derive(Clone, Debug)]
 pub struct HexModel {
@@ -36,6 +76,8 @@ pub struct HexModel {
     pub element_size: Vec3,
     /// Grid node id of each model node.
     pub grid_node: Vec<u32>,
+    /// How the elements' stiffnesses are made; [`HexModel::update`] keeps to it.
+    pub element: ElementKind,
 }
 
 impl HexModel {
@@ -49,11 +91,24 @@ impl HexModel {
         Self::build(grid)
     }
 
+    /// The model of `grid`'s top level with elements of `kind`.
+    ///
+    /// # Panics
+    /// Only on a broken grid invariant (a live element without matrices or with a dead node).
+    #[must_use]
+    pub fn from_grid_of_kind(grid: &BranchedGrid, kind: ElementKind) -> Self {
+        match kind {
+            ElementKind::Condensed => Self::from_grid(grid),
+            ElementKind::Composite => Self::from_grid_composite(grid),
+            ElementKind::Incompatible => Self::from_grid_incompatible(grid),
+        }
+    }
+
     /// The model of `grid` after an edit whose change list is `changes`, `self` being the model
     /// of the grid before it: every element the grid did not condense again keeps its (shared)
     /// stiffness and mass; only added and re-condensed elements get new ones. Equal to
-    /// [`HexModel::from_grid`] of the edited grid, without re-reading and re-sharing every
-    /// element's matrices ([`HexModel::update`] on a copy).
+    /// [`HexModel::from_grid_of_kind`] of the edited grid, without re-reading and re-sharing
+    /// every element's matrices ([`HexModel::update`] on a copy).
     #[must_use]
     pub fn updated(&self, grid: &BranchedGrid, changes: &GridChanges) -> Self {
         let mut model = self.clone();
@@ -62,12 +117,13 @@ impl HexModel {
     }
 
     /// Brings this model of the grid before an edit up to date with `grid` after it (`changes`
-    /// being the edit's change list), in place: [`HexModel::from_grid`] of the edited grid, bit
-    /// for bit, but only the nodes and elements the edit added or changed are read from the grid
-    /// (matrices only where it condensed them again, shared among themselves), and only the
-    /// lumped masses of the nodes around them summed again. The others keep their data
-    /// (stiffness included: the same `Arc`) and move to their new indices. Returns how the
-    /// indices moved.
+    /// being the edit's change list), in place: [`HexModel::from_grid_of_kind`] of the edited
+    /// grid with this model's [`ElementKind`], bit for bit, but only the nodes and elements the
+    /// edit added or changed are read from the grid (matrices only where it condensed them again,
+    /// shared among themselves), and only the lumped masses of the nodes around them summed
+    /// again. The others keep their data (stiffness included: the same `Arc`) and move to their
+    /// new indices; composite elements all get their stiffness again (see
+    /// [`ElementKind::Composite`]). Returns how the indices moved.
     ///
     /// # Panics
     /// Only on a broken grid invariant, or if `self` is not the model of the grid before the
@@ -232,6 +288,25 @@ impl HexModel {
                 }
             }
         }
+        // The enriched kinds: the stiffnesses the grid condensed again are replaced by their own.
+        match self.element {
+            ElementKind::Condensed => {}
+            ElementKind::Incompatible => {
+                let mut shared = SharedMatrices::default();
+                let mut voxels = Vec::new();
+                for &i in &new_matrices {
+                    let e = &mut self.elements[i as usize];
+                    let k =
+                        incise_grid::incompatible::element_stiffness(grid, e.grid_id, &mut voxels)
+                            .expect("live element has a stiffness");
+                    e.stiffness = shared.get(k.symmetrized());
+                }
+            }
+            ElementKind::Composite => {
+                self.set_stiffness(&incise_grid::composite::composite_stiffness(grid));
+                new_matrices = (0..self.elements.len() as u32).collect();
+            }
+        }
         Renumbering {
             node_before,
             grid_node_before,
@@ -266,7 +341,14 @@ impl HexModel {
             let stiffness = shared.get(m.stiffness.symmetrized());
             elements.push(HexElement { nodes, stiffness, mass: m.mass, grid_id: id });
         }
-        Self { rest, lumped_mass, elements, element_size: grid.element_size(), grid_node }
+        Self {
+            rest,
+            lumped_mass,
+            elements,
+            element_size: grid.element_size(),
+            grid_node,
+            element: ElementKind::Condensed,
+        }
     }
 
     /// The same grid with every element's stiffness that of a full cell of its first voxel's
@@ -302,7 +384,10 @@ impl HexModel {
     /// Only on a broken grid invariant (a live element without a stiffness).
     #[must_use]
     pub fn from_grid_composite(grid: &BranchedGrid) -> Self {
-        Self::from_grid_with_stiffness(grid, &incise_grid::composite::composite_stiffness(grid))
+        let mut model = Self::from_grid(grid);
+        model.set_stiffness(&incise_grid::composite::composite_stiffness(grid));
+        model.element = ElementKind::Composite;
+        model
     }
 
     /// The same grid with incompatible-mode elements: every element's condensed stiffness
@@ -313,24 +398,19 @@ impl HexModel {
     /// Only on a broken grid invariant (a live element without a stiffness).
     #[must_use]
     pub fn from_grid_incompatible(grid: &BranchedGrid) -> Self {
-        Self::from_grid_with_stiffness(
-            grid,
-            &incise_grid::incompatible::incompatible_stiffness(grid),
-        )
+        let mut model = Self::from_grid(grid);
+        model.set_stiffness(&incise_grid::incompatible::incompatible_stiffness(grid));
+        model.element = ElementKind::Incompatible;
+        model
     }
 
-    /// The grid's model with each element's stiffness taken from `stiffness` (by grid id).
-    fn from_grid_with_stiffness(
-        grid: &BranchedGrid,
-        stiffness: &[Option<incise_grid::hex8::Mat24>],
-    ) -> Self {
-        let mut model = Self::from_grid(grid);
+    /// Each element's stiffness taken from `stiffness` (by grid id).
+    fn set_stiffness(&mut self, stiffness: &[Option<incise_grid::hex8::Mat24>]) {
         let mut shared = SharedMatrices::default();
-        for e in &mut model.elements {
+        for e in &mut self.elements {
             let k = stiffness[e.grid_id as usize].as_ref().expect("live element has a stiffness");
             e.stiffness = shared.get(k.symmetrized());
         }
-        model
     }
 
     /// `out += scale · M p` with the condensed consistent mass (`Mₑ ⊗ I₃` per element), summed

@@ -8,7 +8,7 @@ mod mass;
 mod state;
 mod transfer;
 
-pub use hex_model::{HexElement, HexModel, Renumbering};
+pub use hex_model::{ElementKind, HexElement, HexModel, Renumbering};
 pub use loads::Loads;
 pub use mass::Mass;
 pub use state::State;

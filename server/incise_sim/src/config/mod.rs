@@ -13,6 +13,7 @@ mod tools;
 
 pub use tools::{Cutting, ShapeSpec, ToolContact, ToolSpec};
 
+pub use incise_fem::ElementKind;
 use incise_fem::forcefield::tet::Elasticity;
 use incise_fem::ode::{LinearSolver, MassMatrix, Rayleigh};
 use incise_fem::{Executor, Formulation, Idle};
@@ -170,6 +171,10 @@ pub struct HexSpec {
     pub formulation: Formulation,
     /// The grid level the mechanics runs on.
     pub level: Level,
+    /// How coarse elements get their stiffness (`model.element`: `"condensed"`, the default,
+    /// `"composite"` or `"incompatible"`). With `model.kind = "auto"` and no `model.element`,
+    /// the calibration chooses it.
+    pub element: ElementKind,
     /// How it is stepped.
     pub integrator: Integrator,
 }
@@ -193,6 +198,9 @@ pub struct AutoLevel {
     pub max_error: f64,
     /// Coarsest level considered.
     pub max_level: u32,
+    /// Whether the calibration also chooses the element kind (no `model.element` given); else
+    /// it keeps [`HexSpec::element`].
+    pub any_element: bool,
 }
 
 /// The integrator of a hexahedral model (`[integrator]`).
@@ -702,6 +710,8 @@ struct RawModel {
     #[serde(default)]
     max_level: Option<Spanned<i64>>,
     #[serde(default)]
+    element: Option<Spanned<String>>,
+    #[serde(default)]
     elasticity: Option<Spanned<String>>,
     #[serde(default)]
     incompressibility: Option<Spanned<f64>>,
@@ -931,7 +941,12 @@ impl Checker<'_> {
             }
         };
         if let Some(m) = m {
-            if kind != ModelKind::TensorMass {
+            if kind == ModelKind::TensorMass {
+                self.refuse(
+                    &[(m.element.as_ref().map(Spanned::span), "model.element")],
+                    "applies only to hexahedra (`model.kind = \"linear\"`, \"corotational\" or \"auto\"): tetrahedra have no coarse elements",
+                )?;
+            } else {
                 self.refuse(
                     &[
                         (m.elasticity.as_ref().map(Spanned::span), "model.elasticity"),
@@ -997,6 +1012,7 @@ impl Checker<'_> {
                 ));
             }
         };
+        let element = self.element(m)?;
         let (formulation, level) = if let ModelKind::Hexahedra(formulation) = kind {
             (formulation, Level::Fixed(self.level(raw.level.as_ref())?))
         } else {
@@ -1008,14 +1024,32 @@ impl Checker<'_> {
                 ));
             }
             let m = m.expect("auto is a `[model]` kind");
-            (Formulation::Corotational, Level::Auto(self.auto_level(m)?))
+            let mut auto = self.auto_level(m)?;
+            auto.any_element = element.is_none();
+            (Formulation::Corotational, Level::Auto(auto))
         };
         Ok(Model::Hexahedra(HexSpec {
             volume,
             formulation,
             level,
+            element: element.unwrap_or_default(),
             integrator: Self::hex_integrator(keys),
         }))
+    }
+
+    /// `model.element`, when given.
+    fn element(&self, m: Option<&RawModel>) -> Result<Option<ElementKind>, SceneError> {
+        let Some(e) = m.and_then(|m| m.element.as_ref()) else { return Ok(None) };
+        ElementKind::from_name(e.get_ref()).map(Some).ok_or_else(|| {
+            self.invalid(
+                e.span(),
+                "model.element",
+                format!(
+                    "is \"{}\"; expected \"condensed\", \"composite\" or \"incompatible\"",
+                    e.get_ref()
+                ),
+            )
+        })
     }
 
     /// `level`: 0 by default.
@@ -1067,7 +1101,7 @@ impl Checker<'_> {
                 ));
             }
         };
-        Ok(AutoLevel { max_error, max_level })
+        Ok(AutoLevel { max_error, max_level, any_element: true })
     }
 
     /// The tensor-mass keys of `[model]`.

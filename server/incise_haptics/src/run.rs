@@ -654,7 +654,14 @@ mod tests {
         };
         snap.jacobian[2][2] = -500.0;
         shared.publish_snapshot(0, &snap);
-        let settings = HapticSettings { max_force_rate_n_per_s: 1e9, ..HapticSettings::default() };
+        // Staleness is measured on the wall clock: a test thread descheduled for longer than
+        // the default 10 ms between two poses (a loaded machine) would see the answer to the
+        // next one fading. Half a second keeps every answer whole; the fade is checked after it.
+        let settings = HapticSettings {
+            max_force_rate_n_per_s: 1e9,
+            stale_after_ms: 500.0,
+            ..HapticSettings::default()
+        };
         let handle = {
             let shared = Arc::clone(&shared);
             std::thread::Builder::new()
@@ -686,9 +693,9 @@ mod tests {
         bad.timestamp_ns = 100;
         assert!(shared.offer_pose(1, &bad));
         assert!(!shared.offer_pose(0, &RawToolPose::at(5, [0.0; 3])), "no tool 5");
-        std::thread::sleep(Duration::from_millis(80));
+        std::thread::sleep(Duration::from_millis(600));
         let (f, _) = shared.force(0).unwrap();
-        assert_eq!(f.force, [0.0; 3], "not faded 80 ms after the last pose: {f:?}");
+        assert_eq!(f.force, [0.0; 3], "not faded 600 ms after the last pose: {f:?}");
         assert_ne!(f.flags & ForceFlag::Stale as u32, 0);
         shared.stop();
         handle.join().unwrap();

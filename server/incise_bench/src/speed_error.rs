@@ -27,7 +27,7 @@ use incise_fem::model::{Loads, State};
 use incise_fem::ode::{
     BackwardEuler, LinearSolver, Rayleigh, explicit_step, stable_dt, static_solve_with,
 };
-use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
+use incise_fem::{ElementKind, Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
 use incise_math::Vec3;
 use incise_sim::config::{DEFAULT_CG_TOLERANCE, Level, Model, VolumeSpec};
 use incise_sim::{SceneConfig, Simulation};
@@ -391,7 +391,7 @@ fn liver_case(
 
 /// The element kind `--elements` names, as the rows spell it.
 fn element_kind(name: &str) -> Option<&'static str> {
-    ["condensed", "composite", "incompatible"].into_iter().find(|&k| k == name)
+    ElementKind::from_name(name).map(ElementKind::name)
 }
 
 /// [`liver_case`] with elements of kind `element` (see [`element_kind`]).
@@ -413,11 +413,10 @@ fn liver_case_of(
         Probe::CentreOfMass,
         vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
     )?;
-    let grid = || simulation.grid().context("a hexahedral scene has a grid");
-    match element {
-        "composite" => case.model = HexModel::from_grid_composite(grid()?),
-        "incompatible" => case.model = HexModel::from_grid_incompatible(grid()?),
-        _ => {}
+    let kind = ElementKind::from_name(element).context("a known element kind")?;
+    if kind != ElementKind::Condensed {
+        let grid = simulation.grid().context("a hexahedral scene has a grid")?;
+        case.model = HexModel::from_grid_of_kind(grid, kind);
     }
     case.element = element;
     Ok(case)

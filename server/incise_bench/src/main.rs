@@ -37,6 +37,10 @@ enum Command {
     /// 109,201-voxel liver at level 0 (static, hanging), compared at the coarse voxels'
     /// centres: centre-of-mass, largest and RMS displacement, and the fields' RMS difference.
     Reference(speed_error::reference::ReferenceArgs),
+    /// The branched grid's levels as a multigrid preconditioner against block-Jacobi CG and
+    /// sparse Cholesky on the liver's finest levels: the static system and the implicit step's
+    /// at 1 and 10 ms, iterations and times, and one operator product's time.
+    Multigrid(speed_error::multigrid::MultigridArgs),
     /// Paper 2's Table 1 (volume change of a bent cylinder and a pulled liver for the linear,
     /// St Venant-Kirchhoff and SVK + incompressibility tensor-mass models, and corotational
     /// hexahedra), explicit speed per model, and adaptive non-linearity against full SVK.
@@ -81,6 +85,7 @@ fn main() -> anyhow::Result<()> {
         Command::Grid(args) => grid_report::run(&args),
         Command::SpeedError(args) => speed_error::run(&args),
         Command::Reference(args) => speed_error::reference::run(&args),
+        Command::Multigrid(args) => speed_error::multigrid::run(&args),
         Command::TensorMass(args) => tensor_mass::run(&args),
         Command::Coexist(args) => coexist::run(&args),
         Command::Frame(args) => frame::run(&args),

@@ -36,6 +36,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 mod moving;
+pub mod multigrid;
 pub mod reference;
 
 /// Arguments of `incise-bench speed-error`.

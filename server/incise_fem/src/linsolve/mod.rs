@@ -10,6 +10,7 @@ pub mod cholesky;
 pub(crate) mod implicit;
 pub(crate) mod jacobi;
 pub(crate) mod lockstep_cg;
+pub mod multigrid;
 pub(crate) mod ordering;
 mod supernodal;
 

@@ -512,3 +512,32 @@ fn latency_report_json_has_the_contract_keys() {
         assert!(j["samples"].as_u64().unwrap() > 100, "{transport}: {j}");
     }
 }
+
+#[test]
+fn multigrid_report_solves_every_system_to_the_cholesky_answer() {
+    let out = bench()
+        .args(["multigrid", "--level", "1", "--coarsest", "2,3", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    println!("{}", String::from_utf8_lossy(&out.stdout));
+    let rows = last_json(&out)["rows"].as_array().unwrap().clone();
+    // Three systems, each with Cholesky, block-Jacobi and the two hierarchies.
+    assert_eq!(rows.len(), 12);
+    let find = |system: &str, solver: &str| {
+        rows.iter()
+            .find(|r| r["system"] == system && r["solver"] == solver)
+            .unwrap_or_else(|| panic!("no {system} {solver} row"))
+    };
+    for row in &rows {
+        for key in ["scene", "level", "dofs", "iterations", "setup_ms", "solve_ms", "difference"] {
+            assert!(!row[key].is_null(), "{key} in {row}");
+        }
+        assert!(row["difference"].as_f64().unwrap() < 1e-6, "{row}");
+    }
+    let iterations = |solver: &str| find("static", solver)["iterations"].as_u64().unwrap();
+    assert!(iterations("multigrid-L3") * 5 < iterations("jacobi-cg"), "{rows:?}");
+    let err = bench().args(["multigrid", "--level", "2", "--coarsest", "1"]).output().unwrap();
+    assert!(!err.status.success());
+    assert!(String::from_utf8_lossy(&err.stderr).contains("--coarsest 1 is not above --level 2"));
+}

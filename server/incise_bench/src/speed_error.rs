@@ -23,9 +23,11 @@
 use crate::timing::measure;
 use anyhow::{Context, bail};
 use incise_fem::linsolve::cg::CgSettings;
+use incise_fem::linsolve::multigrid::{LevelSpec, Multigrid};
 use incise_fem::model::{Loads, State};
 use incise_fem::ode::{
-    BackwardEuler, LinearSolver, Rayleigh, explicit_step, stable_dt, static_solve_with,
+    BackwardEuler, LinearSolver, Rayleigh, explicit_step, stable_dt, static_solve_multigrid,
+    static_solve_with,
 };
 use incise_fem::{ElementKind, Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
 use incise_math::Vec3;
@@ -423,6 +425,34 @@ fn liver_case_of(
     Ok(case)
 }
 
+/// The multigrid over levels 0 to `coarsest` of a supported liver (see [`supported_volume`])
+/// for the static system `K`: its finest level is the model of [`liver_case`] at level 0.
+fn liver_hierarchy(
+    supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
+    coarsest: u32,
+    formulation: Formulation,
+) -> anyhow::Result<Multigrid> {
+    let (config, volume, _) = supported;
+    let sims = (0..=coarsest)
+        .map(|level| {
+            let mut config = config.clone();
+            at_level(&mut config, level);
+            Simulation::new(&config, volume, &config.name)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let specs = sims
+        .iter()
+        .map(|s| -> anyhow::Result<LevelSpec<'_>> {
+            Ok(LevelSpec {
+                grid: s.grid().context("a hexahedral scene has a grid")?,
+                model: s.model().context("a hexahedral scene has a model")?.clone(),
+                fixed: s.fixed().clone(),
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Multigrid::new(specs, formulation, 0.0, 1.0, 2).map_err(anyhow::Error::msg)
+}
+
 /// The scene `file`, and its filtered, strided volume with only the voxels connected (through
 /// shared nodes at level 0) to a held node, with the scene's stride; the scene's volume is
 /// rewritten to take that volume as it is.
@@ -514,11 +544,24 @@ fn measured(case: &Case, x: &[Vec3]) -> f64 {
 /// Newton from rest does not converge (a large, soft deformation), the load is applied in ten
 /// increments, each solve starting from the last.
 fn static_answer(case: &Case, formulation: Formulation, cholesky: bool) -> Option<f64> {
-    static_positions(case, formulation, cholesky).map(|x| measured(case, &x))
+    let mut with = if cholesky { Preconditioner::Cholesky } else { Preconditioner::BlockJacobi };
+    static_positions(case, formulation, &mut with).map(|x| measured(case, &x))
+}
+
+/// How a static solve's Newton steps are preconditioned.
+enum Preconditioner<'a> {
+    BlockJacobi,
+    Cholesky,
+    /// A hierarchy whose finest level is the case's model.
+    Multigrid(&'a mut Multigrid),
 }
 
 /// The node positions of [`static_answer`]'s solve (`None` when Newton did not converge).
-fn static_positions(case: &Case, formulation: Formulation, cholesky: bool) -> Option<Vec<Vec3>> {
+fn static_positions(
+    case: &Case,
+    formulation: Formulation,
+    with: &mut Preconditioner<'_>,
+) -> Option<Vec<Vec3>> {
     let mut ff = HexForceField::new(&case.model, formulation);
     let (model, fixed) = (&case.model, &case.fixed);
     for increments in [1u32, 10] {
@@ -532,8 +575,12 @@ fn static_positions(case: &Case, formulation: Formulation, cholesky: bool) -> Op
             };
             // 1e-8: the probe to 7 digits or so; with an exact factor Newton's residual stalls
             // a little above 1e-9 on scene B (rounding), and 50 refactorisations cost minutes.
-            let report =
-                static_solve_with(model, &mut ff, fixed, &loads, &mut x, 1e-8, 50, cholesky);
+            let report = if let Preconditioner::Multigrid(mg) = with {
+                static_solve_multigrid(model, &mut ff, fixed, &loads, &mut x, 1e-8, 50, mg)
+            } else {
+                let cholesky = matches!(with, Preconditioner::Cholesky);
+                static_solve_with(model, &mut ff, fixed, &loads, &mut x, 1e-8, 50, cholesky)
+            };
             converged &= report.converged;
             if !converged {
                 break;

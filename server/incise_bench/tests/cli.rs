@@ -541,3 +541,14 @@ fn multigrid_report_solves_every_system_to_the_cholesky_answer() {
     assert!(!err.status.success());
     assert!(String::from_utf8_lossy(&err.stderr).contains("--coarsest 1 is not above --level 2"));
 }
+
+#[test]
+fn reference_names_an_unknown_solver() {
+    let out = bench().args(["reference", "--solver", "gauss"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--solver") && err.contains("gauss") && err.contains("multigrid"),
+        "{err}"
+    );
+}

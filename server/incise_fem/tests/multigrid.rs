@@ -222,3 +222,34 @@ fn corotational_levels_follow_the_fine_rotations() {
     assert!(4 * turned_iterations <= 5 * rest_iterations, "{turned_iterations} {rest_iterations}");
     assert!(2 * turned_iterations < stale_iterations, "{turned_iterations} {stale_iterations}");
 }
+
+#[test]
+fn static_newton_with_the_multigrid_reaches_the_same_equilibrium() {
+    use incise_fem::ode::{static_solve_multigrid, static_solve_with};
+    let levels = hierarchy();
+    let (_, model, fixed) = &levels[0];
+    // Soft enough to turn its elements visibly under its weight.
+    let loads = Loads::gravity([0.0, 0.0, -30.0]);
+    let solve_jacobi = || {
+        let mut ff = HexForceField::new(model, Formulation::Corotational);
+        let mut x = model.rest.clone();
+        let report = static_solve_with(model, &mut ff, fixed, &loads, &mut x, 1e-9, 50, false);
+        (x, report)
+    };
+    let (reference, jacobi) = solve_jacobi();
+    let specs = levels
+        .iter()
+        .map(|(grid, model, fixed)| LevelSpec { grid, model: model.clone(), fixed: fixed.clone() })
+        .collect();
+    let mut mg = Multigrid::new(specs, Formulation::Corotational, 0.0, 1.0, 2).unwrap();
+    let mut ff = HexForceField::new(model, Formulation::Corotational);
+    let mut x = model.rest.clone();
+    let report = static_solve_multigrid(model, &mut ff, fixed, &loads, &mut x, 1e-9, 50, &mut mg);
+    println!("block-Jacobi {jacobi:?}\nmultigrid {report:?}");
+    assert!(jacobi.converged && report.converged, "{jacobi:?} {report:?}");
+    let sag = model.centre_of_mass_shift(&reference)[2];
+    let difference = model.centre_of_mass_shift(&x)[2] - sag;
+    assert!(sag < -1e-3, "{sag}");
+    assert!(difference.abs() < 1e-6 * sag.abs(), "{difference} of {sag}");
+    assert!(4 * report.cg_iterations < jacobi.cg_iterations, "{report:?} {jacobi:?}");
+}

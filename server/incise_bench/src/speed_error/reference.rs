@@ -14,7 +14,9 @@
 //! RMS displacement, each with the coarse model's signed error `(coarse − fine) / fine`, and the
 //! RMS of the difference of the two fields relative to the fine field's RMS.
 
-use super::{Case, liver_case, static_positions, supported_volume};
+use super::{
+    Case, Preconditioner, liver_case, liver_hierarchy, static_positions, supported_volume,
+};
 use anyhow::{Context, bail};
 use incise_fem::Formulation;
 use incise_math::Vec3;
@@ -33,6 +35,10 @@ pub struct ReferenceArgs {
     /// a 2-core machine), `linear` (about 40 s).
     #[arg(long, value_delimiter = ',', default_value = "corotational,linear")]
     models: Vec<String>,
+    /// How each Newton step's linear solve is preconditioned: `multigrid` (levels 0 to 3 of
+    /// the same liver, `incise_fem::linsolve::multigrid`) or `block-jacobi`.
+    #[arg(long, default_value = "multigrid")]
+    solver: String,
     /// End with one line holding one JSON object.
     #[arg(long)]
     json: bool,
@@ -75,6 +81,11 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
             other => bail!("--models: unknown model {other:?}; expected corotational or linear"),
         });
     }
+    let multigrid = match args.solver.as_str() {
+        "multigrid" => true,
+        "block-jacobi" => false,
+        other => bail!("--solver: unknown solver {other:?}; expected multigrid or block-jacobi"),
+    };
     let small = supported_volume(&args.scene_dir, "liver_13k.toml")?;
     let large = supported_volume(&args.scene_dir, "liver_109k.toml")?;
     let coarse = liver_case("liver-13k", &small, 0)?;
@@ -82,20 +93,27 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
     let matching = Matching::new(&coarse, &small.1, &fine, &large.1)?;
     let mut rows = Vec::new();
     for (formulation, name) in formulations {
-        let solve = |case: &Case, what: &str| -> anyhow::Result<(Vec<Vec3>, f64)> {
+        let solve = |case: &Case, supported, what: &str| -> anyhow::Result<(Vec<Vec3>, f64)> {
             eprintln!(
-                "{name}: solving {what} at level 0 ({} nodes) statically …",
-                case.model.node_count()
+                "{name}: solving {what} at level 0 ({} nodes) statically with {} …",
+                case.model.node_count(),
+                args.solver
             );
             let start = Instant::now();
-            let x = static_positions(case, formulation, false)
+            let mut hierarchy =
+                if multigrid { Some(liver_hierarchy(supported, 3, formulation)?) } else { None };
+            let mut with = match hierarchy.as_mut() {
+                Some(mg) => Preconditioner::Multigrid(mg),
+                None => Preconditioner::BlockJacobi,
+            };
+            let x = static_positions(case, formulation, &mut with)
                 .with_context(|| format!("{name}: the static solve of {what} did not converge"))?;
             let s = start.elapsed().as_secs_f64();
             eprintln!("  {s:.1} s");
             Ok((x, s))
         };
-        let (xc, coarse_solve_s) = solve(&coarse, "the 13,648-voxel liver")?;
-        let (xf, fine_solve_s) = solve(&fine, "the 109,201-voxel liver")?;
+        let (xc, coarse_solve_s) = solve(&coarse, &small, "the 13,648-voxel liver")?;
+        let (xf, fine_solve_s) = solve(&fine, &large, "the 109,201-voxel liver")?;
         rows.push(matching.compare(name, &coarse, &xc, &fine, &xf, coarse_solve_s, fine_solve_s));
     }
     print(&rows);

@@ -19,4 +19,4 @@ pub use backward_euler::{BackwardEuler, LinearSolver, MassMatrix, StageTimes};
 pub use central_difference::{CentralDifference, StepTooLarge};
 pub use explicit::{explicit_step, explicit_step_fields, stable_dt};
 pub use rayleigh::Rayleigh;
-pub use static_newton::{StaticReport, static_solve, static_solve_with};
+pub use static_newton::{StaticReport, static_solve, static_solve_multigrid, static_solve_with};

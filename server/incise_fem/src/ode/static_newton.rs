@@ -10,6 +10,7 @@ use crate::linsolve::bicgstab;
 use crate::linsolve::cg::{CgSettings, block_jacobi, solve};
 use crate::linsolve::cholesky::SystemFactor;
 use crate::linsolve::jacobi::preconditioner;
+use crate::linsolve::multigrid::Multigrid;
 use crate::model::{HexModel, Loads};
 use incise_math::Vec3;
 
@@ -68,11 +69,49 @@ pub fn static_solve_with(
     max_newton: usize,
     cholesky: bool,
 ) -> StaticReport {
-    let mut factor = if cholesky {
+    let factor = if cholesky {
         SystemFactor::new(model, fixed).ok().map(|f| f.with_executor(ff.executor().clone()))
     } else {
         None
     };
+    newton(model, ff, fixed, loads, x, (tolerance, max_newton), factor, None)
+}
+
+/// [`static_solve`] with each Newton step's linear solve preconditioned by `multigrid`, a
+/// hierarchy over `model` (its finest level) for `a = 0, b = 1`, whose rotations are taken at
+/// every Newton step's positions. Its iterations hardly grow with the mesh, where block-Jacobi's
+/// do; it needs neither Cholesky's memory nor its factorisation (on the 109,201-voxel liver's
+/// linear static solve, 6.1 s against 210 s and block-Jacobi's 66 s, one thread each). A
+/// hierarchy whose coarsest level cannot be factorised at some step leaves that step to
+/// block-Jacobi.
+#[allow(clippy::too_many_arguments)] // static_solve's seven and the hierarchy
+pub fn static_solve_multigrid(
+    model: &HexModel,
+    ff: &mut HexForceField,
+    fixed: &FixedNodes,
+    loads: &Loads,
+    x: &mut [Vec3],
+    tolerance: f64,
+    max_newton: usize,
+    multigrid: &mut Multigrid,
+) -> StaticReport {
+    newton(model, ff, fixed, loads, x, (tolerance, max_newton), None, Some(multigrid))
+}
+
+/// The Newton iterations behind [`static_solve_with`] and [`static_solve_multigrid`]: each step
+/// preconditioned by `factor` when there is one, else by `multigrid` when there is one, else by
+/// block-Jacobi.
+#[allow(clippy::too_many_arguments)]
+fn newton(
+    model: &HexModel,
+    ff: &mut HexForceField,
+    fixed: &FixedNodes,
+    loads: &Loads,
+    x: &mut [Vec3],
+    (tolerance, max_newton): (f64, usize),
+    mut factor: Option<SystemFactor>,
+    mut multigrid: Option<&mut Multigrid>,
+) -> StaticReport {
     let n = model.node_count();
     let mut f_ext = vec![[0.0; 3]; n];
     loads.add_to(model, &mut f_ext);
@@ -163,8 +202,12 @@ pub fn static_solve_with(
                 solve(apply, precondition, fixed, &r, dx, settings)
             }
         };
+        let hierarchy =
+            multigrid.as_deref_mut().and_then(|mg| mg.update(x).is_ok().then_some(&*mg));
         let report = if let Some(f) = factor.as_ref() {
             linear_solve(&|r, z| f.solve(r, z), &mut dx)
+        } else if let Some(mg) = hierarchy {
+            linear_solve(&|r, z| mg.precondition(r, z), &mut dx)
         } else {
             let pre = preconditioner(model, ffr, &model.lumped_mass, 0.0, 1.0);
             linear_solve(&block_jacobi(&pre), &mut dx)

@@ -8,8 +8,8 @@
 //! its error is that settled value against the reference: Euler–Bernoulli for C; for B, static
 //! corotational solves on a 33×22×18 and a 44×30×24 mesh extrapolated to h → 0 (Richardson), the
 //! error signed; and for the 13,648-voxel liver's coarse levels the same model at level 0 (static
-//! linear and corotational solves; the 109,201-voxel liver's too with `--fine-references`, minutes
-//! more). A solver that stopped short would show in that value, and a run that never settles
+//! linear and corotational solves, preconditioned by the liver's own levels as a multigrid; the
+//! 109,201-voxel liver's too with `--fine-references`, about a minute more). A solver that stopped short would show in that value, and a run that never settles
 //! reports no error. The static answer of the row's own mesh and model is reported beside it
 //! (`error_static`). A row is stable when its run stays finite and bounded. B2-moving never
 //! settles: its rows are whole timed runs, compared as trajectories ([`moving`]).
@@ -111,8 +111,9 @@ pub struct SpeedErrorArgs {
     /// (nine internal bubble modes condensed out, `incise_grid::incompatible`).
     #[arg(long, value_delimiter = ',', default_value = "condensed,composite,incompatible")]
     elements: Vec<String>,
-    /// Also solve the 109,201-voxel liver at level 0 (364,668 unknowns: about 40 s linear and
-    /// 5 minutes corotational on a 2-core machine), so that the liver-109k rows get an error.
+    /// Also solve the 109,201-voxel liver at level 0 (364,668 unknowns: about 7 s linear and
+    /// 30 s corotational with the multigrid on a 2-core machine, plus building its levels), so
+    /// that the liver-109k rows get an error.
     #[arg(long)]
     fine_references: bool,
     /// Also print the fastest stable configuration whose error (its absolute value) is at most
@@ -620,12 +621,25 @@ fn set_level0_references(
     eprintln!("reference for {scene}: static solves of {file} at level 0 …");
     let start = std::time::Instant::now();
     let fine = liver_case(&format!("{scene}-ref"), volume, 0)?;
-    let reference =
-        reference_of(&fine, Formulation::Linear, "linear: centre-of-mass displacement", start)?;
+    // Newton's steps preconditioned by the liver's own levels: the 109,201-voxel liver's
+    // solves take seconds instead of minutes (`incise-bench multigrid`).
+    let answer = |formulation| -> anyhow::Result<Option<f64>> {
+        let mut mg = liver_hierarchy(volume, 3, formulation)?;
+        let x = static_positions(&fine, formulation, &mut Preconditioner::Multigrid(&mut mg));
+        Ok(x.map(|x| measured(&fine, &x)))
+    };
+    let Some(reference) = answer(Formulation::Linear)? else {
+        bail!("the static solve of the reference for {scene} did not converge");
+    };
+    eprintln!(
+        "  linear: centre-of-mass displacement {:.4} mm ({:.1} s)",
+        reference * 1e3,
+        start.elapsed().as_secs_f64()
+    );
     // The corotational model's thin necks of single voxels fold under the organ's weight:
     // Newton converges there with the complete tangent (`incise_fem::forcefield::hex::tangent`).
     let start = std::time::Instant::now();
-    let corotational = static_answer(&fine, Formulation::Corotational, false);
+    let corotational = answer(Formulation::Corotational)?;
     match corotational {
         Some(r) => eprintln!(
             "  corotational: centre-of-mass displacement {:.4} mm ({:.1} s)",
@@ -1022,7 +1036,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             set_level0_references(&mut cases, "liver-109k", "liver_109k.toml", large)?;
         } else {
             eprintln!(
-                "liver-109k has no error column: its level-0 model (364,668 unknowns) takes about 6 minutes to solve here; --fine-references solves it"
+                "liver-109k has no error column: its level-0 model (364,668 unknowns) takes about a minute to solve here; --fine-references solves it"
             );
         }
     }

@@ -111,8 +111,8 @@ pub struct SpeedErrorArgs {
     /// (nine internal bubble modes condensed out, `incise_grid::incompatible`).
     #[arg(long, value_delimiter = ',', default_value = "condensed,composite,incompatible")]
     elements: Vec<String>,
-    /// Also solve the 109,201-voxel liver at level 0 (364,668 unknowns: about 7 s linear and
-    /// 30 s corotational with the multigrid on a 2-core machine, plus building its levels), so
+    /// Also solve the 109,201-voxel liver at level 0 (364,668 unknowns: about 10 s linear and
+    /// 35 s corotational with the multigrid on a 2-core machine, plus building its levels), so
     /// that the liver-109k rows get an error.
     #[arg(long)]
     fine_references: bool,
@@ -432,6 +432,7 @@ fn liver_hierarchy(
     supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
     coarsest: u32,
     formulation: Formulation,
+    exec: &Executor,
 ) -> anyhow::Result<Multigrid> {
     let (config, volume, _) = supported;
     let sims = (0..=coarsest)
@@ -451,7 +452,7 @@ fn liver_hierarchy(
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    Multigrid::new(specs, formulation, 0.0, 1.0, 2).map_err(anyhow::Error::msg)
+    Multigrid::new(specs, formulation, 0.0, 1.0, 2, exec).map_err(anyhow::Error::msg)
 }
 
 /// The scene `file`, and its filtered, strided volume with only the voxels connected (through
@@ -564,6 +565,10 @@ fn static_positions(
     with: &mut Preconditioner<'_>,
 ) -> Option<Vec<Vec3>> {
     let mut ff = HexForceField::new(&case.model, formulation);
+    if let Preconditioner::Multigrid(mg) = with {
+        // One pool of threads for the field and the hierarchy.
+        ff = ff.with_executor(mg.executor().clone());
+    }
     let (model, fixed) = (&case.model, &case.fixed);
     for increments in [1u32, 10] {
         let mut x = model.rest.clone();
@@ -624,7 +629,7 @@ fn set_level0_references(
     // Newton's steps preconditioned by the liver's own levels: the 109,201-voxel liver's
     // solves take seconds instead of minutes (`incise-bench multigrid`).
     let answer = |formulation| -> anyhow::Result<Option<f64>> {
-        let mut mg = liver_hierarchy(volume, 3, formulation)?;
+        let mut mg = liver_hierarchy(volume, 3, formulation, &Executor::default())?;
         let x = static_positions(&fine, formulation, &mut Preconditioner::Multigrid(&mut mg));
         Ok(x.map(|x| measured(&fine, &x)))
     };

@@ -6,7 +6,7 @@ use incise_fem::linsolve::SystemFactor;
 use incise_fem::linsolve::cg::{self, CgSettings, block_jacobi, invert_block};
 use incise_fem::linsolve::multigrid::{LevelSpec, Multigrid, Prolongation};
 use incise_fem::model::Loads;
-use incise_fem::{FixedNodes, Formulation, HexForceField, HexModel};
+use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel};
 use incise_grid::procedural::{TISSUE, TUMOUR, ellipsoid_with_inclusion};
 use incise_grid::{BranchedGrid, Material, MaterialTable};
 use incise_math::Vec3;
@@ -123,7 +123,7 @@ fn iterations(levels: &[(BranchedGrid, HexModel, FixedNodes)]) -> (usize, usize)
         .iter()
         .map(|(grid, model, fixed)| LevelSpec { grid, model: model.clone(), fixed: fixed.clone() })
         .collect();
-    let mg = Multigrid::new(specs, Formulation::Linear, 0.0, 1.0, 2).unwrap();
+    let mg = Multigrid::new(specs, Formulation::Linear, 0.0, 1.0, 2, &Executor::default()).unwrap();
 
     // Symmetric and positive: CG's requirements of a preconditioner.
     let n = model.node_count();
@@ -210,10 +210,14 @@ fn corotational_levels_follow_the_fine_rotations() {
         assert!(report.converged, "{report:?}");
         report.iterations
     };
-    let at_rest = Multigrid::new(specs(), Formulation::Corotational, 0.0, 1.0, 2).unwrap();
+    let at_rest =
+        Multigrid::new(specs(), Formulation::Corotational, 0.0, 1.0, 2, &Executor::default())
+            .unwrap();
     let rest_iterations = solve_at(&model.rest.clone(), &at_rest);
     let stale_iterations = solve_at(&x, &at_rest);
-    let mut turned = Multigrid::new(specs(), Formulation::Corotational, 0.0, 1.0, 2).unwrap();
+    let mut turned =
+        Multigrid::new(specs(), Formulation::Corotational, 0.0, 1.0, 2, &Executor::default())
+            .unwrap();
     turned.update(&x).unwrap();
     let turned_iterations = solve_at(&x, &turned);
     println!(
@@ -241,7 +245,9 @@ fn static_newton_with_the_multigrid_reaches_the_same_equilibrium() {
         .iter()
         .map(|(grid, model, fixed)| LevelSpec { grid, model: model.clone(), fixed: fixed.clone() })
         .collect();
-    let mut mg = Multigrid::new(specs, Formulation::Corotational, 0.0, 1.0, 2).unwrap();
+    let mut mg =
+        Multigrid::new(specs, Formulation::Corotational, 0.0, 1.0, 2, &Executor::default())
+            .unwrap();
     let mut ff = HexForceField::new(model, Formulation::Corotational);
     let mut x = model.rest.clone();
     let report = static_solve_multigrid(model, &mut ff, fixed, &loads, &mut x, 1e-9, 50, &mut mg);

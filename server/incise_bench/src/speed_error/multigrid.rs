@@ -4,15 +4,16 @@
 //!
 //! Each system is solved from zero to `‖r‖ ≤ 1e-8 ‖b‖` with the linear stiffness (the rotations
 //! at rest): the static one `K u = f` and the implicit step's `(M + h² K) Δv = h f` at
-//! h = 1 ms and 10 ms. Every solver runs on one thread. The fine level's operator product
-//! (one element loop) is timed too: no preconditioner makes an iteration cheaper than that.
+//! h = 1 ms and 10 ms. Every solver runs on one executor (the machine's cores, at most two;
+//! `INCISE_THREADS` sets it). The fine level's operator product (one element loop) is timed too:
+//! no preconditioner makes an iteration cheaper than that.
 
 use super::{at_level, supported_volume};
 use anyhow::{Context, bail};
 use incise_fem::linsolve::SystemFactor;
 use incise_fem::linsolve::cg::{self, CgSettings, block_jacobi, invert_block};
 use incise_fem::linsolve::multigrid::{LevelSpec, Multigrid};
-use incise_fem::{Formulation, HexForceField, HexModel};
+use incise_fem::{Executor, Formulation, HexForceField, HexModel};
 use incise_math::Vec3;
 use incise_sim::Simulation;
 use serde::Serialize;
@@ -65,6 +66,7 @@ struct Row {
 /// Runs the comparison.
 pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
+    let exec = Executor::configured(None, None);
     for scene in &args.scenes {
         if !["liver_13k", "liver_109k"].contains(&scene.as_str()) {
             bail!("--scenes: unknown scene {scene:?}; expected liver_13k or liver_109k");
@@ -85,7 +87,7 @@ pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
         let fine = &sims[0];
         let model = fine.model().context("a hexahedral scene")?;
         let fixed = fine.fixed();
-        let field = HexForceField::new(model, Formulation::Linear);
+        let field = HexForceField::new(model, Formulation::Linear).with_executor(exec.clone());
         let mut gravity = vec![[0.0; 3]; model.node_count()];
         fine.loads().context("a hexahedral scene")?.add_to(model, &mut gravity);
 
@@ -99,9 +101,10 @@ pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
         }
         let product_ms = t.elapsed().as_secs_f64() * 1e3 / f64::from(products);
         println!(
-            "{scene} level {}: {} unknowns; one operator product {product_ms:.3} ms (one thread)",
+            "{scene} level {}: {} unknowns; one operator product {product_ms:.3} ms ({} threads, as every solver below)",
             args.level,
-            model.dof_count()
+            model.dof_count(),
+            exec.threads()
         );
 
         for (system, a, h) in
@@ -143,7 +146,7 @@ pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
 
             // Sparse Cholesky: the answer the others are compared with.
             let t = Instant::now();
-            let mut factor = SystemFactor::new(model, fixed)?;
+            let mut factor = SystemFactor::new(model, fixed)?.with_executor(exec.clone());
             factor.factorize(model, &field, a, stiffness)?;
             let setup = t.elapsed().as_secs_f64() * 1e3;
             let mut exact = vec![[0.0; 3]; model.node_count()];
@@ -193,8 +196,9 @@ pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
                         fixed: s.fixed().clone(),
                     })
                     .collect();
-                let mg = Multigrid::new(specs, Formulation::Linear, a, stiffness, args.sweeps)
-                    .map_err(anyhow::Error::msg)?;
+                let mg =
+                    Multigrid::new(specs, Formulation::Linear, a, stiffness, args.sweeps, &exec)
+                        .map_err(anyhow::Error::msg)?;
                 let setup = t.elapsed().as_secs_f64() * 1e3;
                 let mut u = vec![[0.0; 3]; model.node_count()];
                 let t = Instant::now();

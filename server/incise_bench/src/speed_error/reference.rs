@@ -100,8 +100,12 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
                 args.solver
             );
             let start = Instant::now();
-            let mut hierarchy =
-                if multigrid { Some(liver_hierarchy(supported, 3, formulation)?) } else { None };
+            let exec = incise_fem::Executor::default();
+            let mut hierarchy = if multigrid {
+                Some(liver_hierarchy(supported, 3, formulation, &exec)?)
+            } else {
+                None
+            };
             let mut with = match hierarchy.as_mut() {
                 Some(mg) => Preconditioner::Multigrid(mg),
                 None => Preconditioner::BlockJacobi,

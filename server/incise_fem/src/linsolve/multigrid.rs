@@ -20,6 +20,7 @@
 use super::cg::invert_block;
 use super::cholesky::{FactorError, SystemFactor};
 use crate::constraint::FixedNodes;
+use crate::exec::Executor;
 use crate::forcefield::hex::{Formulation, HexForceField};
 use crate::model::HexModel;
 use incise_grid::BranchedGrid;
@@ -197,7 +198,8 @@ pub struct LevelSpec<'a> {
 impl Multigrid {
     /// The hierarchy over `levels` (finest first, each grid one level coarser than the one
     /// before), preconditioning `a·M + b·K` with `sweeps` smoothing sweeps before and after each
-    /// coarse correction. The rotations start at rest; see [`Multigrid::update`].
+    /// coarse correction, every level's loops on `exec` (the fine problem's executor: one pool
+    /// of threads, not one per level). The rotations start at rest; see [`Multigrid::update`].
     ///
     /// # Errors
     /// When the levels do not nest (see [`Prolongation::new`]) or the coarsest level's matrix
@@ -208,6 +210,7 @@ impl Multigrid {
         a: f64,
         b: f64,
         sweeps: usize,
+        exec: &Executor,
     ) -> Result<Self, String> {
         let prolongations = (0..levels.len())
             .map(|i| {
@@ -221,7 +224,7 @@ impl Multigrid {
             .into_iter()
             .zip(prolongations)
             .map(|(spec, from_coarser)| Level {
-                field: HexForceField::new(&spec.model, formulation),
+                field: HexForceField::new(&spec.model, formulation).with_executor(exec.clone()),
                 model: spec.model,
                 fixed: spec.fixed,
                 inverse: Vec::new(),
@@ -232,8 +235,9 @@ impl Multigrid {
         let Some(last) = built.last() else {
             return Err("a multigrid needs at least one level".into());
         };
-        let coarsest =
-            SystemFactor::new(&last.model, &last.fixed).map_err(|e: FactorError| e.to_string())?;
+        let coarsest = SystemFactor::new(&last.model, &last.fixed)
+            .map_err(|e: FactorError| e.to_string())?
+            .with_executor(exec.clone());
         let scratch = built
             .iter()
             .map(|l| {
@@ -312,6 +316,12 @@ impl Multigrid {
             lambda = super::cg::dot(&v, &v).sqrt();
         }
         lambda
+    }
+
+    /// The executor every level's loops run on.
+    #[must_use]
+    pub fn executor(&self) -> &Executor {
+        self.levels[0].field.executor()
     }
 
     /// Levels, finest first: (nodes, elements) of each.

@@ -81,7 +81,7 @@ pub fn static_solve_with(
 /// hierarchy over `model` (its finest level) for `a = 0, b = 1`, whose rotations are taken at
 /// every Newton step's positions. Its iterations hardly grow with the mesh, where block-Jacobi's
 /// do; it needs neither Cholesky's memory nor its factorisation (on the 109,201-voxel liver's
-/// linear static solve, 6.1 s against 210 s and block-Jacobi's 66 s, one thread each). A
+/// linear static solve, 5.6 s against 179 s and block-Jacobi's 58 s on two threads). A
 /// hierarchy whose coarsest level cannot be factorised at some step leaves that step to
 /// block-Jacobi.
 #[allow(clippy::too_many_arguments)] // static_solve's seven and the hierarchy

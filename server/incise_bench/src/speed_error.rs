@@ -9,8 +9,8 @@
 //! corotational solves on a 33×22×18 and a 44×30×24 mesh extrapolated to h → 0 (Richardson), the
 //! error signed; and for the 13,648-voxel liver's coarse levels the same model at level 0 (static
 //! linear and corotational solves, preconditioned by the liver's own levels as a multigrid; the
-//! 109,201-voxel liver's too with `--fine-references`, about a minute more). A solver that stopped short would show in that value, and a run that never settles
-//! reports no error. The static answer of the row's own mesh and model is reported beside it
+//! 109,201-voxel liver's too with `--fine-references`, about a minute more). A solver that
+//! stopped short would show in that value, and a run that never settles reports no error. The static answer of the row's own mesh and model is reported beside it
 //! (`error_static`). A row is stable when its run stays finite and bounded. B2-moving never
 //! settles: its rows are whole timed runs, compared as trajectories ([`moving`]).
 //!
@@ -426,23 +426,32 @@ fn liver_case_of(
     Ok(case)
 }
 
-/// The multigrid over levels 0 to `coarsest` of a supported liver (see [`supported_volume`])
-/// for the static system `K`: its finest level is the model of [`liver_case`] at level 0.
-fn liver_hierarchy(
+/// The scenes of a supported liver (see [`supported_volume`]) at levels `finest` to `coarsest`:
+/// a multigrid's levels (see [`hierarchy_of`]). At level 0 the model is [`liver_case`]'s.
+fn liver_levels(
     supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
+    finest: u32,
     coarsest: u32,
-    formulation: Formulation,
-    exec: &Executor,
-) -> anyhow::Result<Multigrid> {
+) -> anyhow::Result<Vec<Simulation>> {
     let (config, volume, _) = supported;
-    let sims = (0..=coarsest)
+    (finest..=coarsest)
         .map(|level| {
             let mut config = config.clone();
             at_level(&mut config, level);
-            Simulation::new(&config, volume, &config.name)
+            Ok(Simulation::new(&config, volume, &config.name)?)
         })
-        .collect::<Result<Vec<_>, _>>()?;
-    let specs = sims
+        .collect()
+}
+
+/// The multigrid over `levels` (finest first) for `a·M + b·K` with `sweeps` smoothing sweeps.
+fn hierarchy_of(
+    levels: &[Simulation],
+    formulation: Formulation,
+    (a, b): (f64, f64),
+    sweeps: usize,
+    exec: &Executor,
+) -> anyhow::Result<Multigrid> {
+    let specs = levels
         .iter()
         .map(|s| -> anyhow::Result<LevelSpec<'_>> {
             Ok(LevelSpec {
@@ -452,7 +461,7 @@ fn liver_hierarchy(
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    Multigrid::new(specs, formulation, 0.0, 1.0, 2, exec).map_err(anyhow::Error::msg)
+    Multigrid::new(specs, formulation, a, b, sweeps, exec).map_err(anyhow::Error::msg)
 }
 
 /// The scene `file`, and its filtered, strided volume with only the voxels connected (through
@@ -628,8 +637,9 @@ fn set_level0_references(
     let fine = liver_case(&format!("{scene}-ref"), volume, 0)?;
     // Newton's steps preconditioned by the liver's own levels: the 109,201-voxel liver's
     // solves take seconds instead of minutes (`incise-bench multigrid`).
+    let levels = liver_levels(volume, 0, 3)?;
     let answer = |formulation| -> anyhow::Result<Option<f64>> {
-        let mut mg = liver_hierarchy(volume, 3, formulation, &Executor::default())?;
+        let mut mg = hierarchy_of(&levels, formulation, (0.0, 1.0), 2, &Executor::default())?;
         let x = static_positions(&fine, formulation, &mut Preconditioner::Multigrid(&mut mg));
         Ok(x.map(|x| measured(&fine, &x)))
     };

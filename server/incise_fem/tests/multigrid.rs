@@ -3,7 +3,8 @@
 //! answer in iterations that do not grow as the voxels are refined, while block-Jacobi's do.
 
 use incise_fem::linsolve::SystemFactor;
-use incise_fem::linsolve::cg::{self, CgSettings, block_jacobi, invert_block};
+use incise_fem::linsolve::cg::{self, CgSettings, block_jacobi};
+use incise_fem::linsolve::jacobi::preconditioner;
 use incise_fem::linsolve::multigrid::{LevelSpec, Multigrid, Prolongation};
 use incise_fem::model::Loads;
 use incise_fem::{Executor, FixedNodes, Formulation, HexForceField, HexModel};
@@ -115,7 +116,7 @@ fn iterations(levels: &[(BranchedGrid, HexModel, FixedNodes)]) -> (usize, usize)
     let mut exact = vec![[0.0; 3]; model.node_count()];
     cg::solve(apply, |r, z| factor.solve(r, z), fixed, &b, &mut exact, settings);
 
-    let blocks: Vec<_> = field.diagonal_blocks(model).iter().map(invert_block).collect();
+    let blocks = preconditioner(model, &field, &model.lumped_mass, 0.0, 1.0);
     let mut u = vec![[0.0; 3]; model.node_count()];
     let jacobi = cg::solve(apply, block_jacobi(&blocks), fixed, &b, &mut u, settings);
 

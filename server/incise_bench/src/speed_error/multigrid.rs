@@ -8,14 +8,13 @@
 //! `INCISE_THREADS` sets it). The fine level's operator product (one element loop) is timed too:
 //! no preconditioner makes an iteration cheaper than that.
 
-use super::{at_level, supported_volume};
+use super::{hierarchy_of, liver_levels, supported_volume};
 use anyhow::{Context, bail};
 use incise_fem::linsolve::SystemFactor;
-use incise_fem::linsolve::cg::{self, CgSettings, block_jacobi, invert_block};
-use incise_fem::linsolve::multigrid::{LevelSpec, Multigrid};
-use incise_fem::{Executor, Formulation, HexForceField, HexModel};
+use incise_fem::linsolve::cg::{self, CgSettings, block_jacobi};
+use incise_fem::linsolve::jacobi::preconditioner;
+use incise_fem::{Executor, Formulation, HexForceField};
 use incise_math::Vec3;
-use incise_sim::Simulation;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -74,16 +73,10 @@ pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
         if let Some(&c) = args.coarsest.iter().find(|&&c| c <= args.level) {
             bail!("--coarsest {c} is not above --level {}", args.level);
         }
-        let (config, volume, _) = supported_volume(&args.scene_dir, &format!("{scene}.toml"))?;
+        let supported = supported_volume(&args.scene_dir, &format!("{scene}.toml"))?;
         let top = args.coarsest.iter().copied().max().unwrap_or(args.level);
-        let mut sims = Vec::new();
-        for level in args.level..=top {
-            let mut config = config.clone();
-            at_level(&mut config, level);
-            eprint!("\r{scene}: building level {level}   ");
-            sims.push(Simulation::new(&config, &volume, &config.name)?);
-        }
-        eprintln!();
+        eprintln!("{scene}: building levels {} to {top} …", args.level);
+        let sims = liver_levels(&supported, args.level, top)?;
         let fine = &sims[0];
         let model = fine.model().context("a hexahedral scene")?;
         let fixed = fine.fixed();
@@ -167,18 +160,7 @@ pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
             };
 
             let t = Instant::now();
-            let blocks: Vec<_> = field
-                .diagonal_blocks(model)
-                .iter()
-                .zip(&model.lumped_mass)
-                .map(|(k, &m)| {
-                    let mut d = k.map(|row| row.map(|v| stiffness * v));
-                    for (i, row) in d.iter_mut().enumerate() {
-                        row[i] += a * m;
-                    }
-                    invert_block(&d)
-                })
-                .collect();
+            let blocks = preconditioner(model, &field, &model.lumped_mass, a, stiffness);
             let setup = t.elapsed().as_secs_f64() * 1e3;
             let mut u = vec![[0.0; 3]; model.node_count()];
             let t = Instant::now();
@@ -188,17 +170,9 @@ pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
 
             for &coarsest in &args.coarsest {
                 let t = Instant::now();
-                let specs = sims[..=(coarsest - args.level) as usize]
-                    .iter()
-                    .map(|s| LevelSpec {
-                        grid: s.grid().expect("a hexahedral scene"),
-                        model: HexModel::clone(s.model().expect("a hexahedral scene")),
-                        fixed: s.fixed().clone(),
-                    })
-                    .collect();
+                let levels = &sims[..=(coarsest - args.level) as usize];
                 let mg =
-                    Multigrid::new(specs, Formulation::Linear, a, stiffness, args.sweeps, &exec)
-                        .map_err(anyhow::Error::msg)?;
+                    hierarchy_of(levels, Formulation::Linear, (a, stiffness), args.sweeps, &exec)?;
                 let setup = t.elapsed().as_secs_f64() * 1e3;
                 let mut u = vec![[0.0; 3]; model.node_count()];
                 let t = Instant::now();

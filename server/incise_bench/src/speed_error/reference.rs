@@ -15,11 +15,13 @@
 //! RMS of the difference of the two fields relative to the fine field's RMS.
 
 use super::{
-    Case, Preconditioner, liver_case, liver_hierarchy, static_positions, supported_volume,
+    Case, Preconditioner, hierarchy_of, liver_case, liver_levels, static_positions,
+    supported_volume,
 };
 use anyhow::{Context, bail};
 use incise_fem::Formulation;
 use incise_math::Vec3;
+use incise_sim::Simulation;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -91,9 +93,19 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
     let coarse = liver_case("liver-13k", &small, 0)?;
     let fine = liver_case("liver-109k", &large, 0)?;
     let matching = Matching::new(&coarse, &small.1, &fine, &large.1)?;
+    // The multigrid's levels, built once for both models (the hierarchy of each model is
+    // built within its solve's time).
+    let levels = if multigrid {
+        Some((liver_levels(&small, 0, 3)?, liver_levels(&large, 0, 3)?))
+    } else {
+        None
+    };
     let mut rows = Vec::new();
     for (formulation, name) in formulations {
-        let solve = |case: &Case, supported, what: &str| -> anyhow::Result<(Vec<Vec3>, f64)> {
+        let solve = |case: &Case,
+                     levels: Option<&[Simulation]>,
+                     what: &str|
+         -> anyhow::Result<(Vec<Vec3>, f64)> {
             eprintln!(
                 "{name}: solving {what} at level 0 ({} nodes) statically with {} …",
                 case.model.node_count(),
@@ -101,10 +113,9 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
             );
             let start = Instant::now();
             let exec = incise_fem::Executor::default();
-            let mut hierarchy = if multigrid {
-                Some(liver_hierarchy(supported, 3, formulation, &exec)?)
-            } else {
-                None
+            let mut hierarchy = match levels {
+                Some(levels) => Some(hierarchy_of(levels, formulation, (0.0, 1.0), 2, &exec)?),
+                None => None,
             };
             let mut with = match hierarchy.as_mut() {
                 Some(mg) => Preconditioner::Multigrid(mg),
@@ -116,8 +127,10 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
             eprintln!("  {s:.1} s");
             Ok((x, s))
         };
-        let (xc, coarse_solve_s) = solve(&coarse, &small, "the 13,648-voxel liver")?;
-        let (xf, fine_solve_s) = solve(&fine, &large, "the 109,201-voxel liver")?;
+        let (xc, coarse_solve_s) =
+            solve(&coarse, levels.as_ref().map(|l| &l.0[..]), "the 13,648-voxel liver")?;
+        let (xf, fine_solve_s) =
+            solve(&fine, levels.as_ref().map(|l| &l.1[..]), "the 109,201-voxel liver")?;
         rows.push(matching.compare(name, &coarse, &xc, &fine, &xf, coarse_solve_s, fine_solve_s));
     }
     print(&rows);

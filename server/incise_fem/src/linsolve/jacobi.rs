@@ -7,8 +7,10 @@ use crate::model::HexModel;
 use incise_math::Vec3;
 use incise_math::mat3::Mat3;
 
-/// Block-Jacobi preconditioner of `a·M + b·K`.
-pub(crate) fn preconditioner(
+/// Block-Jacobi preconditioner of `a·M + b·K` (`mass` lumped, per node), `K` at the field's
+/// rotations.
+#[must_use]
+pub fn preconditioner(
     model: &HexModel,
     ff: &HexForceField,
     mass: &[f64],

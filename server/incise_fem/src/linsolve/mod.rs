@@ -8,7 +8,7 @@ pub(crate) mod bicgstab;
 pub mod cg;
 pub mod cholesky;
 pub(crate) mod implicit;
-pub(crate) mod jacobi;
+pub mod jacobi;
 pub(crate) mod lockstep_cg;
 pub mod multigrid;
 pub(crate) mod ordering;

@@ -17,8 +17,8 @@
 //! sparse Cholesky. Pre- and post-smoothing are the same symmetric sweeps, so the cycle is a
 //! symmetric positive definite preconditioner, as CG requires.
 
-use super::cg::invert_block;
 use super::cholesky::{FactorError, SystemFactor};
+use super::jacobi::preconditioner_into;
 use crate::constraint::FixedNodes;
 use crate::exec::Executor;
 use crate::forcefield::hex::{Formulation, HexForceField};
@@ -271,19 +271,10 @@ impl Multigrid {
     /// Rebuilds the smoothers' blocks and the coarsest factor from the current rotations.
     fn refresh(&mut self) -> Result<(), FactorError> {
         let (a, b) = (self.a, self.b);
+        let mut sums = Vec::new();
         for level in &mut self.levels {
-            let blocks = level.field.diagonal_blocks(&level.model);
-            level.inverse = blocks
-                .iter()
-                .zip(&level.model.lumped_mass)
-                .map(|(k, &m)| {
-                    let mut d: Mat3 = std::array::from_fn(|i| std::array::from_fn(|j| b * k[i][j]));
-                    for (i, row) in d.iter_mut().enumerate() {
-                        row[i] += a * m;
-                    }
-                    invert_block(&d)
-                })
-                .collect();
+            let Level { model, field, inverse, .. } = level;
+            preconditioner_into(model, field, &model.lumped_mass, (a, b), inverse, &mut sums);
         }
         for i in 0..self.levels.len() {
             let lambda = self.largest_eigenvalue(i);

@@ -7,11 +7,11 @@
 //! rest until its compared quantity settles (`--settle-seconds` simulated seconds at most), and
 //! its error is that settled value against the reference: Euler–Bernoulli for C; for B, static
 //! corotational solves on a 33×22×18 and a 44×30×24 mesh extrapolated to h → 0 (Richardson), the
-//! error signed; and for the 13,648-voxel liver's coarse levels the same model at level 0 (static
-//! linear and corotational solves, preconditioned by the liver's own levels as a multigrid; the
-//! 109,201-voxel liver's too with `--fine-references`, about a minute more). A solver that
-//! stopped short would show in that value, and a run that never settles reports no error. The static answer of the row's own mesh and model is reported beside it
-//! (`error_static`). A row is stable when its run stays finite and bounded. B2-moving never
+//! error signed; and for both livers the finest model affordable, the 109,201-voxel liver at
+//! level 0 solved statically with the same model (each Newton step preconditioned by the liver's
+//! own levels as a multigrid), compared on the same points ([`organ`]). A solver that stopped
+//! short would show in that value, and a run that never settles reports no error. The static
+//! answer of the row's own mesh and model is reported beside it (`error_static`). A row is stable when its run stays finite and bounded. B2-moving never
 //! settles: its rows are whole timed runs, compared as trajectories ([`moving`]).
 //!
 //! Speed is steps per second of the integrator alone, median/min/max over `--repeats` runs, on
@@ -34,11 +34,14 @@ use incise_math::Vec3;
 use incise_sim::config::{DEFAULT_CG_TOLERANCE, Level, Model, VolumeSpec};
 use incise_sim::{SceneConfig, Simulation};
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 mod moving;
 pub mod multigrid;
+mod organ;
 pub mod reference;
 
 /// Arguments of `incise-bench speed-error`.
@@ -102,19 +105,26 @@ pub struct SpeedErrorArgs {
     /// only to keep tests quick: the figures are then not the benchmark's).
     #[arg(long, default_value_t = 2.0, hide = true)]
     moving_seconds: f64,
-    /// Levels of the 13,648-voxel liver to run (each against its level-0 static solve).
+    /// Levels of the 13,648-voxel liver to run.
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     liver_levels: Vec<u32>,
+    /// Levels of the 109,201-voxel liver to run (level 2 holds about 3,000 elements; its rows
+    /// take several minutes).
+    #[arg(long = "liver-109k-levels", value_delimiter = ',', default_value = "3")]
+    liver_109k_levels: Vec<u32>,
+    /// Hexahedral models to run, comma-separated: `corotational`, `linear`. The liver's
+    /// reference is solved for these only (the corotational one takes most of its time).
+    #[arg(long, value_delimiter = ',', default_value = "corotational,linear")]
+    models: Vec<String>,
     /// Element kinds of the liver's coarse levels, comma-separated: `condensed` (the Galerkin
     /// product of the voxels, Jeřábková 2010 eq. 1–4), `composite` (the points of a cell that no
     /// other element uses relaxed to least energy, `incise_grid::composite`) and `incompatible`
     /// (nine internal bubble modes condensed out, `incise_grid::incompatible`).
     #[arg(long, value_delimiter = ',', default_value = "condensed,composite,incompatible")]
     elements: Vec<String>,
-    /// Also solve the 109,201-voxel liver at level 0 (364,668 unknowns: about 10 s linear and
-    /// 35 s corotational with the multigrid on a 2-core machine, plus building its levels), so
-    /// that the liver-109k rows get an error.
-    #[arg(long)]
+    /// Accepted for older command lines: the 109,201-voxel liver's level 0 is now always solved,
+    /// as the liver's reference.
+    #[arg(long, hide = true)]
     fine_references: bool,
     /// Also print the fastest stable configuration whose error (its absolute value) is at most
     /// this (e.g. 0.05).
@@ -122,11 +132,14 @@ pub struct SpeedErrorArgs {
     max_error: Option<f64>,
     /// End with one line holding one JSON object `{"rows":[…],"references":{…},"threads":{…}}`.
     /// A row's `error` is signed for scene B (`(u − u*)/|u*|`) and the absolute relative error
-    /// elsewhere, `error_abs` its absolute value; `steps_per_s_one_thread` is the implicit rows'
-    /// speed on one thread (null on explicit rows); `trajectory_error` is b2-moving's error (null
-    /// on other rows). `references.B` holds scene B's coarse, fine and extrapolated answers and
-    /// the extrapolation's estimated error; `references.B1` … the value the rows are measured
-    /// against.
+    /// elsewhere, `error_abs` its absolute value; `error_signed` holds the signed fractions by
+    /// quantity (`corner` for B, `tip_deflection` for C, `centre_of_mass`, `max` and `rms` for
+    /// the liver, whose `error` is the larger magnitude of the first two);
+    /// `steps_per_s_one_thread` is the implicit rows' speed on one thread (null on explicit
+    /// rows); `trajectory_error` is b2-moving's error (null on other rows). `references.B`
+    /// holds scene B's coarse, fine and extrapolated answers and the extrapolation's estimated
+    /// error; `references.B1` … the value the rows are measured against; `references.liver` the
+    /// liver's reference measures and the 13,648-voxel liver's level 0 against them.
     #[arg(long)]
     json: bool,
     /// Write the rows as CSV to this file.
@@ -201,6 +214,11 @@ struct Row {
     error: Option<f64>,
     /// `|error|`: what `--max-error` and the peer comparisons use.
     error_abs: Option<f64>,
+    /// The signed fractions `(u − r)/|r|` by quantity (see `--json`).
+    error_signed: Option<BTreeMap<&'static str, f64>>,
+    /// Liver rows: the centre of mass's error against the same liver's level 0 (static, same
+    /// model), the discretisation error of the coarse levels that `model = "auto"` calibrates.
+    error_level0: Option<f64>,
     /// The static answer of the row's mesh and model against the reference (signed as `error`).
     error_static: Option<f64>,
     /// Scene B2-moving: the pulled corner's RMS distance from the reference trajectory over its
@@ -235,7 +253,12 @@ struct Case {
     damping: Rayleigh,
     tolerance: f64,
     probe: Probe,
+    /// The probe's name in `error_signed`.
+    quantity: &'static str,
     reference: Option<f64>,
+    /// Liver cases: the rows' error against the liver's reference ([`organ`]); `reference` is
+    /// then the same liver's level 0 (`error_level0`).
+    organ: Option<Organ>,
     /// The model the reference is valid for (`None`: every model's rows are measured against
     /// it, as the physical answer).
     reference_model: Option<Formulation>,
@@ -249,6 +272,12 @@ struct Case {
     /// Block scenes: the block's size and cells per axis, from which the tensor-mass rows build
     /// their tetrahedra.
     block: Option<([f64; 3], [usize; 3])>,
+}
+
+/// How a liver case is measured against the liver's reference.
+struct Organ {
+    sampler: organ::Sampler,
+    reference: Arc<organ::OrganReference>,
 }
 
 /// Reads `file` from the scene folder and builds it with `Simulation::new`, at `level` and with
@@ -313,7 +342,9 @@ fn case_of(
         damping: hex.integrator.damping(),
         tolerance: hex.integrator.cg_tolerance().unwrap_or(DEFAULT_CG_TOLERANCE),
         probe,
+        quantity: "",
         reference: None,
+        organ: None,
         reference_model: None,
         corotational_reference: None,
         signed: false,
@@ -349,6 +380,7 @@ fn block_case(
         vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
     )?;
     case.signed = true;
+    case.quantity = "corner";
     Ok(case)
 }
 
@@ -379,6 +411,7 @@ fn cantilever_case(args: &SpeedErrorArgs, n: usize) -> anyhow::Result<Case> {
         vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
     )?;
     case.reference = Some(q * l.powi(4) / (8.0 * material.youngs_modulus * inertia));
+    case.quantity = "tip_deflection";
     Ok(case)
 }
 
@@ -390,7 +423,11 @@ fn liver_case(
     supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
     level: u32,
 ) -> anyhow::Result<Case> {
-    liver_case_of(name, supported, level, "condensed")
+    let (config, volume, stride) = supported;
+    let mut config = config.clone();
+    at_level(&mut config, level);
+    let simulation = Simulation::new(&config, volume, &config.name)?;
+    liver_case_from(name, &simulation, *stride, "condensed")
 }
 
 /// The element kind `--elements` names, as the rows spell it.
@@ -398,22 +435,18 @@ fn element_kind(name: &str) -> Option<&'static str> {
     ElementKind::from_name(name).map(ElementKind::name)
 }
 
-/// [`liver_case`] with elements of kind `element` (see [`element_kind`]).
-fn liver_case_of(
+/// [`liver_case`] from its built scene, with elements of kind `element` (see [`element_kind`]).
+fn liver_case_from(
     name: &str,
-    supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
-    level: u32,
+    simulation: &Simulation,
+    stride: [usize; 3],
     element: &'static str,
 ) -> anyhow::Result<Case> {
-    let (config, volume, stride) = supported;
-    let mut config = config.clone();
-    at_level(&mut config, level);
-    let simulation = Simulation::new(&config, volume, &config.name)?;
     let mut case = case_of(
         name,
         format!("stride {},{},{}", stride[0], stride[1], stride[2]),
-        &config,
-        &simulation,
+        simulation.config(),
+        simulation,
         Probe::CentreOfMass,
         vec![LinearSolver::JacobiCg, LinearSolver::CholeskyCg { refresh_iterations: 8 }],
     )?;
@@ -423,7 +456,60 @@ fn liver_case_of(
         case.model = HexModel::from_grid_of_kind(grid, kind);
     }
     case.element = element;
+    case.quantity = "centre_of_mass";
     Ok(case)
+}
+
+/// The coarsest level of the multigrid that solves a liver's level 0.
+const MULTIGRID_COARSEST: u32 = 3;
+
+/// A supported liver (see [`supported_volume`]) built at levels 0 to 3 or coarser: its rows'
+/// models, and the levels of the multigrid that solves its level 0 statically.
+struct Liver {
+    /// The rows' scene name (`liver-13k`, `liver-109k`).
+    scene: &'static str,
+    file: &'static str,
+    supported: (SceneConfig, incise_grid::LabelVolume, [usize; 3]),
+    levels: Vec<Simulation>,
+}
+
+impl Liver {
+    /// Reads `file` and builds its levels 0 to `coarsest` (at least 3).
+    fn read(
+        scene_dir: &Path,
+        scene: &'static str,
+        file: &'static str,
+        coarsest: u32,
+    ) -> anyhow::Result<Self> {
+        let supported = supported_volume(scene_dir, file)?;
+        let levels = liver_levels(&supported, 0, coarsest.max(MULTIGRID_COARSEST))?;
+        Ok(Self { scene, file, supported, levels })
+    }
+
+    /// The case at `level` with elements of kind `element`.
+    fn case(&self, level: u32, element: &'static str) -> anyhow::Result<Case> {
+        liver_case_from(self.scene, &self.levels[level as usize], self.supported.2, element)
+    }
+
+    /// The grid and model of `level`.
+    fn level(&self, level: u32) -> anyhow::Result<(&incise_grid::BranchedGrid, &HexModel)> {
+        let s = &self.levels[level as usize];
+        Ok((s.grid().context("a liver has a grid")?, s.model().context("a liver has a model")?))
+    }
+
+    /// The static positions of `level0` (this liver's level-0 case) with `formulation`, each
+    /// Newton step preconditioned by the liver's own levels as a multigrid (the 109,201-voxel
+    /// liver's solves take seconds instead of minutes: `incise-bench multigrid`); `None` when
+    /// Newton did not converge.
+    fn static_level0(
+        &self,
+        level0: &Case,
+        formulation: Formulation,
+    ) -> anyhow::Result<Option<Vec<Vec3>>> {
+        let levels = &self.levels[..=MULTIGRID_COARSEST as usize];
+        let mut mg = hierarchy_of(levels, formulation, (0.0, 1.0), 2, &Executor::default())?;
+        Ok(static_positions(level0, formulation, &mut Preconditioner::Multigrid(&mut mg)))
+    }
 }
 
 /// The scenes of a supported liver (see [`supported_volume`]) at levels `finest` to `coarsest`:
@@ -623,54 +709,105 @@ fn reference_of(
     Ok(reference)
 }
 
-/// Gives the rows of `scene` (a liver at coarse levels) their references: each model's static
-/// answer at level 0 of the same `volume` (read from `file`), so their error is the coarse
-/// levels' discretisation error, the quantity `model = "auto"` calibrates.
-fn set_level0_references(
+/// The model's name in the rows and in messages.
+fn model_name(formulation: Formulation) -> &'static str {
+    match formulation {
+        Formulation::Linear => "linear",
+        Formulation::Corotational => "corotational",
+    }
+}
+
+/// Gives the liver cases their references, and returns them as JSON: the liver's reference is
+/// the 109,201-voxel liver's level 0 (`large`), solved statically with each of `formulations`,
+/// read on the points [`organ`] describes; each case is also measured against its own liver's
+/// level 0 (`error_level0`), so `small`'s level 0 is solved too when it has cases.
+fn set_liver_references(
     cases: &mut [Case],
-    scene: &str,
-    file: &str,
-    volume: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
-) -> anyhow::Result<()> {
-    eprintln!("reference for {scene}: static solves of {file} at level 0 …");
-    let start = std::time::Instant::now();
-    let fine = liver_case(&format!("{scene}-ref"), volume, 0)?;
-    // Newton's steps preconditioned by the liver's own levels: the 109,201-voxel liver's
-    // solves take seconds instead of minutes (`incise-bench multigrid`).
-    let levels = liver_levels(volume, 0, 3)?;
-    let answer = |formulation| -> anyhow::Result<Option<f64>> {
-        let mut mg = hierarchy_of(&levels, formulation, (0.0, 1.0), 2, &Executor::default())?;
-        let x = static_positions(&fine, formulation, &mut Preconditioner::Multigrid(&mut mg));
-        Ok(x.map(|x| measured(&fine, &x)))
+    small: &Liver,
+    large: &Liver,
+    formulations: &[Formulation],
+) -> anyhow::Result<serde_json::Value> {
+    let coarse0 = small.case(0, "condensed")?;
+    let fine0 = large.case(0, "condensed")?;
+    let matching =
+        reference::Matching::new(&coarse0, &small.supported.1, &fine0, &large.supported.1)?;
+    let points = |liver: &Liver| {
+        if liver.scene == small.scene {
+            matching.coarse_points(&coarse0.model)
+        } else {
+            matching.fine_points()
+        }
     };
-    let Some(reference) = answer(Formulation::Linear)? else {
-        bail!("the static solve of the reference for {scene} did not converge");
+    let fine_sampler = organ::Sampler::new(large.level(0)?, large.level(0)?, points(large))?;
+    let coarse_sampler = organ::Sampler::new(small.level(0)?, small.level(0)?, points(small))?;
+    let with_small = cases.iter().any(|c| c.scene == small.scene);
+    let mut reference = organ::OrganReference {
+        points: points(large).len(),
+        unmatched: matching.unmatched(),
+        linear: None,
+        corotational: None,
     };
-    eprintln!(
-        "  linear: centre-of-mass displacement {:.4} mm ({:.1} s)",
-        reference * 1e3,
-        start.elapsed().as_secs_f64()
-    );
-    // The corotational model's thin necks of single voxels fold under the organ's weight:
-    // Newton converges there with the complete tangent (`incise_fem::forcefield::hex::tangent`).
-    let start = std::time::Instant::now();
-    let corotational = answer(Formulation::Corotational)?;
-    match corotational {
-        Some(r) => eprintln!(
-            "  corotational: centre-of-mass displacement {:.4} mm ({:.1} s)",
-            r * 1e3,
+    // Per liver and model: the centre of mass's displacement at level 0.
+    let mut level0: Vec<(&str, Formulation, f64)> = Vec::new();
+    let mut small_errors = serde_json::Map::new();
+    for &formulation in formulations {
+        let name = model_name(formulation);
+        eprintln!(
+            "reference for the liver: static {name} solve of {} at level 0 ({} nodes) …",
+            large.file,
+            fine0.model.node_count()
+        );
+        let start = std::time::Instant::now();
+        let Some(x) = large.static_level0(&fine0, formulation)? else {
+            eprintln!("  the static solve did not converge: the {name} liver rows have no error");
+            continue;
+        };
+        let measures = fine_sampler.measures(&fine0.model.rest, &x);
+        eprintln!(
+            "  centre of mass {:.4} mm, largest {:.4} mm, RMS {:.4} mm ({:.1} s)",
+            measures.centre_of_mass * 1e3,
+            measures.max * 1e3,
+            measures.rms * 1e3,
             start.elapsed().as_secs_f64()
-        ),
-        None => eprintln!(
-            "  corotational: the static solve did not converge; the corotational rows have no error"
-        ),
+        );
+        level0.push((large.scene, formulation, measured(&fine0, &x)));
+        match formulation {
+            Formulation::Linear => reference.linear = Some(measures),
+            Formulation::Corotational => reference.corotational = Some(measures),
+        }
+        if with_small {
+            eprintln!("  and of {} at level 0 …", small.file);
+            if let Some(x) = small.static_level0(&coarse0, formulation)? {
+                level0.push((small.scene, formulation, measured(&coarse0, &x)));
+                let error =
+                    coarse_sampler.measures(&coarse0.model.rest, &x).signed_error(&measures);
+                small_errors.insert(name.into(), serde_json::to_value(error)?);
+            }
+        }
     }
-    for c in cases.iter_mut().filter(|c| c.scene == scene) {
-        c.reference = Some(reference);
-        c.reference_model = Some(Formulation::Linear);
-        c.corotational_reference = corotational;
+    let reference = Arc::new(reference);
+    let json = serde_json::json!({
+        "model": format!("{} at level 0, static", large.file),
+        "measures": &*reference,
+        format!("{} level 0", small.scene): small_errors,
+    });
+    for case in cases.iter_mut() {
+        let liver = match &case.scene {
+            s if s == small.scene => small,
+            s if s == large.scene => large,
+            _ => continue,
+        };
+        let grid = liver.levels[case.level as usize].grid().context("a liver has a grid")?;
+        let sampler = organ::Sampler::new(liver.level(0)?, (grid, &case.model), points(liver))?;
+        case.organ = Some(Organ { sampler, reference: Arc::clone(&reference) });
+        let at_level0 = |f: Formulation| {
+            level0.iter().find(|(s, m, _)| *s == liver.scene && *m == f).map(|l| l.2)
+        };
+        case.reference = at_level0(Formulation::Linear);
+        case.reference_model = Some(Formulation::Linear);
+        case.corotational_reference = at_level0(Formulation::Corotational);
     }
-    Ok(())
+    Ok(json)
 }
 
 #[derive(Clone, Copy)]
@@ -714,6 +851,46 @@ fn stepper<'a>(
         None => {
             explicit_step(&case.model, &mut ff, &case.fixed, &case.loads, damping.alpha, dt, state);
         }
+    }
+}
+
+/// A row's errors (see [`Row`]).
+#[derive(Default)]
+struct Errors {
+    error: Option<f64>,
+    signed: Option<BTreeMap<&'static str, f64>>,
+    level0: Option<f64>,
+}
+
+/// The errors of `case` with `formulation` at positions `x`, whose compared quantity is `value`,
+/// against `reference` (the case's reference for this model).
+fn errors(
+    case: &Case,
+    formulation: Formulation,
+    reference: Option<f64>,
+    value: f64,
+    x: &[Vec3],
+) -> Errors {
+    let relative = |r: f64| (value - r) / r.abs();
+    let Some(organ) = &case.organ else {
+        let signed = reference.map(relative);
+        return Errors {
+            error: signed.map(|e| if case.signed { e } else { e.abs() }),
+            signed: signed.map(|e| BTreeMap::from([(case.quantity, e)])),
+            level0: None,
+        };
+    };
+    let measures = match formulation {
+        Formulation::Linear => organ.reference.linear,
+        Formulation::Corotational => organ.reference.corotational,
+    };
+    let signed = measures.map(|r| organ.sampler.measures(&case.model.rest, x).signed_error(&r));
+    Errors {
+        error: signed.map(|e| e.worst()),
+        signed: signed.map(|e| {
+            BTreeMap::from([("centre_of_mass", e.centre_of_mass), ("max", e.max), ("rms", e.rms)])
+        }),
+        level0: reference.map(|r| relative(r).abs()),
     }
 }
 
@@ -771,6 +948,8 @@ struct Run {
     settled: bool,
     /// The compared quantity at the end of the run.
     value: f64,
+    /// The positions at the end of the run (empty when unstable).
+    x: Vec<Vec3>,
 }
 
 /// Runs `case` from rest for at least `--stable-seconds`, then until the compared quantity
@@ -794,7 +973,7 @@ fn run_until_settled(
     let min_steps = (args.stable_seconds / dt).ceil() as usize;
     let max_steps = min_steps.max((args.settle_seconds / dt).ceil() as usize);
     let mut windows: Vec<f64> = Vec::new();
-    let unstable = || Run { stable: false, settled: false, value: f64::NAN };
+    let unstable = || Run { stable: false, settled: false, value: f64::NAN, x: Vec::new() };
     for k in 1..=max_steps {
         step(&mut state);
         if state.x.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
@@ -818,12 +997,12 @@ fn run_until_settled(
                 && (c - b).abs() <= SETTLED * c.abs()
                 && (b - a).abs() <= SETTLED * c.abs()
             {
-                return Run { stable: true, settled: true, value: c };
+                return Run { stable: true, settled: true, value: c, x: state.x };
             }
         }
     }
     let value = measured(case, &state.x);
-    Run { stable: true, settled: false, value }
+    Run { stable: true, settled: false, value, x: state.x }
 }
 
 /// The order of the pulled corner's discretisation error in the cell size for trilinear
@@ -974,6 +1153,14 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     } else {
         args.scene.split(',').map(|s| s.trim().to_lowercase()).collect()
     };
+    let mut formulations = Vec::new();
+    for m in &args.models {
+        formulations.push(match m.as_str() {
+            "corotational" => Formulation::Corotational,
+            "linear" => Formulation::Linear,
+            other => bail!("--models: unknown model {other:?}; expected corotational or linear"),
+        });
+    }
     if let Some(bad) = args.elements.iter().find(|e| element_kind(e).is_none()) {
         bail!(
             "--elements: unknown element kind {bad:?}; expected condensed, composite or incompatible"
@@ -991,7 +1178,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     };
     let mut cases: Vec<Case> = Vec::new();
     let mut moving_scene = None;
-    let (mut liver_13k, mut liver_109k) = (None, None);
+    let mut livers = None;
     for w in &wanted {
         match w.as_str() {
             "b1" => cases.push(block_case(args, "B1", "b1.toml", None)?),
@@ -1004,20 +1191,34 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 }
             }
             "liver" => {
-                let small = supported_volume(&args.scene_dir, "liver_13k.toml")?;
-                for &level in &args.liver_levels {
-                    for element in args.elements.iter().filter_map(|e| element_kind(e)) {
-                        // Level 0's elements are voxels: there is nothing inside them to relax.
-                        if level == 0 && element != "condensed" {
-                            continue;
+                let coarsest = |levels: &[u32]| levels.iter().copied().max().unwrap_or(0);
+                eprintln!("building the livers' levels …");
+                let small = Liver::read(
+                    &args.scene_dir,
+                    "liver-13k",
+                    "liver_13k.toml",
+                    coarsest(&args.liver_levels),
+                )?;
+                let large = Liver::read(
+                    &args.scene_dir,
+                    "liver-109k",
+                    "liver_109k.toml",
+                    coarsest(&args.liver_109k_levels),
+                )?;
+                for (liver, levels) in
+                    [(&small, &args.liver_levels), (&large, &args.liver_109k_levels)]
+                {
+                    for &level in levels {
+                        for element in args.elements.iter().filter_map(|e| element_kind(e)) {
+                            // Level 0's elements are voxels: nothing inside them to relax.
+                            if level == 0 && element != "condensed" {
+                                continue;
+                            }
+                            cases.push(liver.case(level, element)?);
                         }
-                        cases.push(liver_case_of("liver-13k", &small, level, element)?);
                     }
                 }
-                liver_13k = Some(small);
-                let large = supported_volume(&args.scene_dir, "liver_109k.toml")?;
-                cases.push(liver_case("liver-109k", &large, 3)?);
-                liver_109k = Some(large);
+                livers = Some((small, large));
             }
             other => {
                 bail!("unknown scene '{other}': expected all, b1, b2, b3, b2-moving, c or liver")
@@ -1040,21 +1241,14 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    if let Some(small) = liver_13k.as_ref().filter(|_| cases.iter().any(|c| c.scene == "liver-13k"))
-    {
-        set_level0_references(&mut cases, "liver-13k", "liver_13k.toml", small)?;
-    }
-    if let Some(large) =
-        liver_109k.as_ref().filter(|_| cases.iter().any(|c| c.scene == "liver-109k"))
-    {
-        if args.fine_references {
-            set_level0_references(&mut cases, "liver-109k", "liver_109k.toml", large)?;
-        } else {
-            eprintln!(
-                "liver-109k has no error column: its level-0 model (364,668 unknowns) takes about a minute to solve here; --fine-references solves it"
-            );
+    let liver_reference = match &livers {
+        Some((small, large)) if cases.iter().any(|c| c.scene.starts_with("liver")) => {
+            Some(set_liver_references(&mut cases, small, large, &formulations)?)
         }
-    }
+        _ => None,
+    };
+    // The livers' levels are in the cases now; the rest is not needed any more.
+    drop(livers);
     // One executor for every row, so that INCISE_THREADS applies to the whole report; the
     // one-thread column runs the same rows again on an executor of one thread.
     let exec = Executor::configured(None, None);
@@ -1070,20 +1264,16 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             &case.fixed,
         );
         explicit_limits.push((case.scene.clone(), case.resolution.clone(), explicit_limit));
-        for formulation in [Formulation::Corotational, Formulation::Linear] {
+        for &formulation in &formulations {
             let reference = match case.reference_model {
                 None => case.reference,
                 Some(m) if m == formulation => case.reference,
                 Some(_) if formulation == Formulation::Corotational => case.corotational_reference,
                 Some(_) => None,
             };
-            let error_of = |value: f64| {
-                reference.map(|r| {
-                    let e = (value - r) / r.abs();
-                    if case.signed { e } else { e.abs() }
-                })
-            };
-            let error_static = static_answer(case, formulation, true).and_then(error_of);
+            let errors_of = |value: f64, x: &[Vec3]| errors(case, formulation, reference, value, x);
+            let error_static = static_positions(case, formulation, &mut Preconditioner::Cholesky)
+                .and_then(|x| errors_of(measured(case, &x), &x).error);
             // The linear model's matrix is constant: one exact factorisation serves every step,
             // so the direct solver is measured for it too.
             let direct = (formulation == Formulation::Linear && is_scene_b(&case.scene))
@@ -1098,7 +1288,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                 for dt in [1e-3, 1e-2] {
                     let outcome = match scheme {
                         Scheme::Explicit if dt > explicit_limit => {
-                            Run { stable: false, settled: false, value: f64::NAN }
+                            Run { stable: false, settled: false, value: f64::NAN, x: Vec::new() }
                         }
                         _ => run_until_settled(case, formulation, scheme, dt, args, &exec),
                     };
@@ -1115,7 +1305,11 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                         _ => None,
                     };
                     let (integrator, solver) = scheme_names(scheme);
-                    let error = outcome.settled.then(|| error_of(outcome.value)).flatten();
+                    let Errors { error, signed, level0 } = if outcome.settled {
+                        errors_of(outcome.value, &outcome.x)
+                    } else {
+                        Errors::default()
+                    };
                     rows.push(Row {
                         scene: case.scene.clone(),
                         element: case.element,
@@ -1137,6 +1331,8 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                         steps_per_s_one_thread: one_thread,
                         error,
                         error_abs: error.map(f64::abs),
+                        error_signed: signed,
+                        error_level0: level0,
                         error_static,
                         trajectory_error: None,
                         settled: outcome.settled,
@@ -1180,6 +1376,9 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     );
     if let Some(reference) = &block_reference {
         reference.print();
+    }
+    if let Some(liver) = &liver_reference {
+        print_liver_reference(liver);
     }
     if let Some((scene, summary)) = &moving {
         summary.print(scene, args.repeats.max(1));
@@ -1243,13 +1442,19 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     if args.json {
         let mut references = serde_json::Map::new();
         for c in &cases {
+            // A liver's own level 0: its rows' `error_level0`.
+            let key =
+                if c.organ.is_some() { format!("{} level 0", c.scene) } else { c.scene.clone() };
             if let Some(r) = c.reference {
-                references.insert(c.scene.clone(), r.into());
+                references.insert(key.clone(), r.into());
             }
             // A scene whose rows have a reference per model: the corotational one beside it.
             if let Some(r) = c.corotational_reference {
-                references.insert(format!("{} corotational", c.scene), r.into());
+                references.insert(format!("{key} corotational"), r.into());
             }
+        }
+        if let Some(liver) = liver_reference {
+            references.insert("liver".into(), liver);
         }
         if let Some(reference) = &block_reference {
             references.insert("B".into(), reference.json());
@@ -1426,10 +1631,8 @@ fn tensor_mass_rows(
         );
         let answer =
             (0..3).map(|a| (x[probe][a] - model.rest[probe][a]).powi(2)).sum::<f64>().sqrt();
-        let error = case.reference.filter(|_| settled.converged).map(|r| {
-            let e = (answer - r) / r.abs();
-            if case.signed { e } else { e.abs() }
-        });
+        let signed = case.reference.filter(|_| settled.converged).map(|r| (answer - r) / r.abs());
+        let error = signed.map(|e| if case.signed { e } else { e.abs() });
         for dt in [1e-3, 1e-2, limit] {
             let run = |steps: usize| -> (bool, f64) {
                 let Ok(mut cd) = CentralDifference::new(&model, &ff, &fixed, &model.rest, dt, 2.0)
@@ -1470,6 +1673,8 @@ fn tensor_mass_rows(
                 // Dynamic relaxation is this integrator run to rest (at half its stable step).
                 error: error.filter(|_| ok),
                 error_abs: error.filter(|_| ok).map(f64::abs),
+                error_signed: signed.filter(|_| ok).map(|e| BTreeMap::from([(case.quantity, e)])),
+                error_level0: None,
                 error_static: error,
                 trajectory_error: None,
                 settled: ok && settled.converged,
@@ -1569,10 +1774,8 @@ fn implicit_tensor_mass_rows(
             r
         };
         let (rates, one) = (rates(2), rates(1));
-        let error = case.reference.zip(answer).map(|(r, u)| {
-            let e = (u - r) / r.abs();
-            if case.signed { e } else { e.abs() }
-        });
+        let signed = case.reference.zip(answer).map(|(r, u)| (u - r) / r.abs());
+        let error = signed.map(|e| if case.signed { e } else { e.abs() });
         rows.push(Row {
             scene: case.scene.clone(),
             element: "tetrahedra",
@@ -1590,6 +1793,8 @@ fn implicit_tensor_mass_rows(
             steps_per_s_one_thread: ok.then(|| one[one.len() / 2]),
             error,
             error_abs: error.map(f64::abs),
+            error_signed: signed.map(|e| BTreeMap::from([(case.quantity, e)])),
+            error_level0: None,
             error_static,
             trajectory_error: None,
             settled: answer.is_some(),
@@ -1599,9 +1804,45 @@ fn implicit_tensor_mass_rows(
     rows
 }
 
+/// The liver's reference and what its rows' errors mean.
+fn print_liver_reference(liver: &serde_json::Value) {
+    let mm = |v: &serde_json::Value, key: &str| v[key].as_f64().unwrap_or(f64::NAN) * 1e3;
+    let measures = &liver["measures"];
+    println!(
+        "the liver's reference: {} ({} points: the 13,648-voxel liver's voxel centres, {} without a fine node left out)",
+        liver["model"].as_str().unwrap_or_default(),
+        measures["points"],
+        measures["unmatched"]
+    );
+    for name in ["corotational", "linear"] {
+        let m = &measures[name];
+        if m.is_object() {
+            println!(
+                "  {name}: centre of mass {:.3} mm, largest {:.3} mm, RMS {:.3} mm",
+                mm(m, "centre_of_mass"),
+                mm(m, "max"),
+                mm(m, "rms")
+            );
+        }
+    }
+    if let Some(level0) = liver["liver-13k level 0"].as_object() {
+        for (name, e) in level0 {
+            println!(
+                "  the 13,648-voxel liver's level 0 ({name}) against it: centre of mass {:+.2} %, largest {:+.2} %, RMS {:+.2} %",
+                mm(e, "centre_of_mass") / 10.0,
+                mm(e, "max") / 10.0,
+                mm(e, "rms") / 10.0
+            );
+        }
+    }
+    println!(
+        "liver rows: error = the larger magnitude of the centre of mass's and the largest displacement's signed errors against it (each in error_signed); L0 err = the centre of mass against the same liver's own level 0 (what model = \"auto\" calibrates)"
+    );
+}
+
 fn print_table(rows: &[Row]) {
     println!(
-        "{:<11} {:<18} {:<10} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9} {:>6}",
+        "{:<11} {:<18} {:<10} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9} {:>6} {:>9}",
         "scene",
         "model",
         "element",
@@ -1618,7 +1859,8 @@ fn print_table(rows: &[Row]) {
         "1T steps/s",
         "error",
         "traj err",
-        "stable"
+        "stable",
+        "L0 err"
     );
     let percent =
         |e: Option<f64>| e.map_or_else(|| "-".to_string(), |e| format!("{:.2} %", e * 100.0));
@@ -1631,7 +1873,7 @@ fn print_table(rows: &[Row]) {
             None => "-".to_string(),
         };
         println!(
-            "{:<11} {:<18} {:<10} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10.1} {:>10.1} {:>10.1} {:>10} {:>9} {:>9} {:>6}",
+            "{:<11} {:<18} {:<10} {:<15} {:<12} {:<14} {:>5} {:>8} {:>7} {:>8} {:>10.1} {:>10.1} {:>10.1} {:>10} {:>9} {:>9} {:>6} {:>9}",
             r.scene,
             r.model,
             r.element,
@@ -1648,7 +1890,8 @@ fn print_table(rows: &[Row]) {
             r.steps_per_s_one_thread.map_or_else(|| "-".to_string(), |s| format!("{s:.1}")),
             error,
             percent(r.trajectory_error),
-            if r.stable { "yes" } else { "no" }
+            if r.stable { "yes" } else { "no" },
+            percent(r.error_level0)
         );
     }
 }
@@ -1659,12 +1902,18 @@ fn write_csv(path: &std::path::Path, rows: &[Row]) -> std::io::Result<()> {
     // New columns go at the end, so that scripts reading the older ones by position still work.
     writeln!(
         f,
-        "scene,model,integrator,solver,resolution,level,elements,dofs,dt,steps_per_s,steps_per_s_min,steps_per_s_max,error,stable,error_static,settled,error_abs,trajectory_error,steps_per_s_one_thread,element"
+        "scene,model,integrator,solver,resolution,level,elements,dofs,dt,steps_per_s,steps_per_s_min,steps_per_s_max,error,stable,error_static,settled,error_abs,trajectory_error,steps_per_s_one_thread,element,error_signed,error_level0"
     )?;
+    // `quantity=fraction` pairs joined by `;`, so the column stays one CSV field.
+    let signed = |m: &Option<BTreeMap<&'static str, f64>>| {
+        m.as_ref().map_or(String::new(), |m| {
+            m.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(";")
+        })
+    };
     for r in rows {
         writeln!(
             f,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.scene,
             r.model,
             r.integrator,
@@ -1685,6 +1934,8 @@ fn write_csv(path: &std::path::Path, rows: &[Row]) -> std::io::Result<()> {
             opt(r.trajectory_error),
             opt(r.steps_per_s_one_thread),
             r.element,
+            signed(&r.error_signed),
+            opt(r.error_level0),
         )?;
     }
     Ok(())

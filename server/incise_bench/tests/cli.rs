@@ -123,7 +123,8 @@ fn bad_input_gets_a_clear_error() {
         "--png",
         "--max-error",
         "--peers",
-        "--fine-references",
+        "--liver-109k-levels",
+        "--models",
         "--richardson-cells",
         "--no-richardson",
         "--elements",
@@ -373,7 +374,7 @@ fn speed_error_b2_moving_reports_trajectory_errors() {
     assert!(
         header.starts_with(
             "scene,model,integrator,solver,resolution,level,elements,dofs,dt,steps_per_s,steps_per_s_min,steps_per_s_max,error,stable,error_static,settled,error_abs,trajectory_error,steps_per_s_one_thread,"
-        ) && header.ends_with(",element"),
+        ) && header.ends_with(",element,error_signed,error_level0"),
         "older columns keep their places, new ones go at the end: {header}"
     );
     for r in rows {
@@ -381,6 +382,68 @@ fn speed_error_b2_moving_reports_trajectory_errors() {
     }
     assert_eq!(text.lines().count(), 1 + rows.len());
     std::fs::remove_file(&csv).ok();
+}
+
+/// The liver's rows against the liver's reference, the 109,201-voxel liver at level 0: the
+/// contract keys, each row's error built from its signed errors, the settled runs on their static
+/// answers, and the reference itself as `incise-bench reference` measured it (docs/benchmarks.md,
+/// "The liver's reference": 47.96 mm, the 13,648-voxel liver's level 0 13.1 % short, linear).
+#[test]
+fn speed_error_measures_the_liver_against_the_fine_liver() {
+    let out = bench()
+        .args(["speed-error", "--scene", "liver", "--models", "linear"])
+        .args(["--liver-levels", "3", "--liver-109k-levels", "3"])
+        .args(["--elements", "condensed,incompatible"])
+        .args(["--steps", "2", "--repeats", "1", "--run-seconds", "0", "--warmup-steps", "1"])
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    let liver = &j["references"]["liver"];
+    let reference = &liver["measures"]["linear"];
+    let com = reference["centre_of_mass"].as_f64().unwrap();
+    // The figures were printed to 0.01 mm and 0.1 %.
+    assert!((com - 47.96e-3).abs() <= 0.005e-3, "{liver}");
+    assert_eq!(liver["measures"]["points"], 13_648, "{liver}");
+    assert!(liver["measures"]["corotational"].is_null(), "not asked for: {liver}");
+    let level0 = liver["liver-13k level 0"]["linear"]["centre_of_mass"].as_f64().unwrap();
+    assert!((level0 + 0.131).abs() <= 0.0005, "{liver}");
+    let rows = j["rows"].as_array().unwrap();
+    for scene in ["liver-13k", "liver-109k"] {
+        let n = rows.iter().filter(|r| r["scene"] == scene).count();
+        assert_eq!(n, 2 * 3 * 2, "{scene}: 2 element kinds x 3 schemes x 2 dt");
+    }
+    for r in rows {
+        for key in ["scene", "error", "error_signed", "steps_per_s", "dt", "stable"] {
+            assert!(r.get(key).is_some(), "row lacks {key}: {r}");
+        }
+        assert_eq!(r["model"], "linear-hex", "{r}");
+        if r["settled"] != true {
+            continue;
+        }
+        let signed = &r["error_signed"];
+        let part = |k: &str| signed[k].as_f64().unwrap_or_else(|| panic!("no {k}: {r}"));
+        let error = r["error"].as_f64().unwrap();
+        assert_eq!(error, part("centre_of_mass").abs().max(part("max").abs()), "{r}");
+        assert!(part("rms").is_finite(), "{r}");
+        // Coarse levels are stiffer than the voxels: every measure short of the reference.
+        assert!(part("centre_of_mass") < 0.0 && part("max") < 0.0, "{r}");
+        // Settled within 1e-5 of still: on the static answer of the row's own model.
+        let s = r["error_static"].as_f64().unwrap();
+        assert!((error - s).abs() <= 1e-4, "{r}");
+        assert!(r["error_level0"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("the liver's reference: liver_109k.toml at level 0"), "{stdout}");
+    assert!(
+        bench()
+            .args(["speed-error", "--scene", "liver", "--models", "hyperelastic"])
+            .output()
+            .is_ok_and(|o| !o.status.success()
+                && String::from_utf8_lossy(&o.stderr).contains("unknown model \"hyperelastic\"")),
+        "an unknown model is named"
+    );
 }
 
 #[test]

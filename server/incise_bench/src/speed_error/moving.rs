@@ -342,6 +342,8 @@ pub(super) fn rows(
                 steps_per_s_one_thread: one_thread,
                 error: None,
                 error_abs: None,
+                error_signed: None,
+                error_level0: None,
                 error_static: None,
                 trajectory_error: stable.then(|| trajectory_error(&trajectory, dt, &reference)),
                 settled: false,

@@ -14,6 +14,7 @@
 //! RMS displacement, each with the coarse model's signed error `(coarse − fine) / fine`, and the
 //! RMS of the difference of the two fields relative to the fine field's RMS.
 
+use super::organ::Measures;
 use super::{
     Case, Preconditioner, hierarchy_of, liver_case, liver_levels, static_positions,
     supported_volume,
@@ -44,14 +45,6 @@ pub struct ReferenceArgs {
     /// End with one line holding one JSON object.
     #[arg(long)]
     json: bool,
-}
-
-/// The displacement measures over the compared points (m).
-#[derive(Clone, Copy, Debug, Serialize)]
-struct Measures {
-    centre_of_mass: f64,
-    max: f64,
-    rms: f64,
 }
 
 /// One model's comparison.
@@ -141,13 +134,17 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
 }
 
 /// Which fine node lies at each coarse voxel's centre.
-struct Matching {
+pub(super) struct Matching {
     /// Per coarse element (a voxel at level 0): the fine nodes at its centre (empty: none).
     nodes: Vec<Vec<u32>>,
 }
 
 impl Matching {
-    fn new(
+    /// The matching of `coarse`'s voxels (`coarse_volume`'s at level 0) with `fine`'s nodes.
+    ///
+    /// # Errors
+    /// When the two grids do not nest.
+    pub(super) fn new(
         coarse: &Case,
         coarse_volume: &incise_grid::LabelVolume,
         fine: &Case,
@@ -195,6 +192,27 @@ impl Matching {
         Ok(Self { nodes })
     }
 
+    /// The compared points as the coarse model's level-0 nodes: each matched voxel's corners.
+    pub(super) fn coarse_points(&self, coarse: &incise_fem::HexModel) -> Vec<Vec<u32>> {
+        coarse
+            .elements
+            .iter()
+            .zip(&self.nodes)
+            .filter(|(_, fine)| !fine.is_empty())
+            .map(|(e, _)| e.nodes.to_vec())
+            .collect()
+    }
+
+    /// The compared points as the fine model's level-0 nodes.
+    pub(super) fn fine_points(&self) -> Vec<Vec<u32>> {
+        self.nodes.iter().filter(|n| !n.is_empty()).cloned().collect()
+    }
+
+    /// Coarse voxels with no fine node at their centre.
+    pub(super) fn unmatched(&self) -> usize {
+        self.nodes.iter().filter(|n| n.is_empty()).count()
+    }
+
     #[allow(clippy::too_many_arguments, reason = "both models, both solutions and their times")]
     fn compare(
         &self,
@@ -214,18 +232,7 @@ impl Matching {
             uc.push(mean_displacement(&e.nodes, &coarse.model.rest, xc));
             uf.push(mean_displacement(nodes, &fine.model.rest, xf));
         }
-        let norm = |u: &Vec3| (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
-        let measures = |u: &[Vec3]| {
-            let count = u.len().max(1) as f64;
-            let com: Vec3 = std::array::from_fn(|a| u.iter().map(|v| v[a]).sum::<f64>() / count);
-            Measures {
-                centre_of_mass: norm(&com),
-                max: u.iter().map(norm).fold(0.0, f64::max),
-                rms: (u.iter().map(|v| norm(v).powi(2)).sum::<f64>() / count).sqrt(),
-            }
-        };
-        let (c, f) = (measures(&uc), measures(&uf));
-        let rel = |c: f64, f: f64| (c - f) / f;
+        let (c, f) = (Measures::of(&uc), Measures::of(&uf));
         let difference: Vec<Vec3> =
             uc.iter().zip(&uf).map(|(a, b)| std::array::from_fn(|k| a[k] - b[k])).collect();
         Comparison {
@@ -234,12 +241,8 @@ impl Matching {
             unmatched: self.nodes.len() - uc.len(),
             fine: f,
             coarse: c,
-            error_signed: Measures {
-                centre_of_mass: rel(c.centre_of_mass, f.centre_of_mass),
-                max: rel(c.max, f.max),
-                rms: rel(c.rms, f.rms),
-            },
-            field_rms_error: measures(&difference).rms / f.rms,
+            error_signed: c.signed_error(&f),
+            field_rms_error: Measures::of(&difference).rms / f.rms,
             fine_solve_s,
             coarse_solve_s,
         }

@@ -1,6 +1,8 @@
-//! The speed-vs-error plot (log-log, one series per model) drawn with `plotters` into a PNG, with
-//! the peers as labelled markers: measured on this machine at their error (`--peers`), or else
-//! their published speeds (docs/benchmarks.md, first run) in a band above 100 % error.
+//! The speed-vs-error plot (log-log, one series per model, and on the liver per model and element
+//! kind) drawn with `plotters` into a PNG, with the peers as labelled markers: measured on this
+//! machine at their error (`--peers`), or else their published speeds on scene B
+//! (docs/benchmarks.md, first run) in a band above 100 % error. With liver rows, two fronts: the
+//! fastest configuration at each error with condensed elements only, and with every kind.
 
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
@@ -32,20 +34,62 @@ fn load_font() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Draws `(model, scene, steps/s, error, stable)` points to `path`, and the `measured` peers'
-/// `(label, steps/s, error)` points (or, without them, the published speeds).
+/// One row of the report as the plot sees it.
+pub struct Point<'a> {
+    pub model: &'a str,
+    pub element: &'a str,
+    pub scene: &'a str,
+    pub steps_per_s: f64,
+    pub error: Option<f64>,
+    pub stable: bool,
+}
+
+impl Point<'_> {
+    fn is_liver(&self) -> bool {
+        self.scene.starts_with("liver")
+    }
+
+    /// The series the point is drawn in.
+    fn series(&self) -> String {
+        if self.is_liver() {
+            format!("{}, {}", self.model, self.element)
+        } else {
+            self.model.to_owned()
+        }
+    }
+}
+
+/// The Pareto front of `(steps/s, error)` points: from the fastest down, each point with a lower
+/// error than every faster one.
+fn front(mut points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    points.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut best = f64::INFINITY;
+    points
+        .into_iter()
+        .filter(|&(_, e)| {
+            let better = e < best;
+            best = best.min(e);
+            better
+        })
+        .collect()
+}
+
+/// Draws `points` to `path`, and the `measured` peers' `(label, steps/s, error)` points (or,
+/// without them, the published speeds on scene B when scene B is drawn).
 pub fn speed_error_png(
     path: &Path,
-    points: &[(&str, &str, f64, Option<f64>, bool)],
+    points: &[Point<'_>],
     measured: Option<&[(String, f64, f64)]>,
 ) -> anyhow::Result<()> {
     load_font()?;
-    let usable: Vec<(&str, f64, f64)> = points
+    let usable: Vec<(&Point<'_>, f64, f64)> = points
         .iter()
-        .filter_map(|&(m, _, s, e, ok)| {
-            (ok && s > 0.0).then_some(e.filter(|&e| e > 0.0).map(|e| (m, s, e)))?
+        .filter_map(|p| {
+            let e = p.error.filter(|&e| e > 0.0)?;
+            (p.stable && p.steps_per_s > 0.0).then_some((p, p.steps_per_s, e))
         })
         .collect();
+    let published = measured.is_none() && points.iter().any(|p| p.scene.starts_with('B'));
     let (mut x_lo, mut x_hi) = (1.0f64, 1e4f64);
     let (mut y_lo, mut y_hi) = (1e-3f64, 1.0f64);
     let peer_points = measured.unwrap_or_default().iter().map(|(_, s, e)| (*s, *e));
@@ -58,7 +102,7 @@ pub fn speed_error_png(
     // Without measured peers, the published speeds sit in a band above 100 % error, where no
     // measured point can be.
     let band = y_hi.max(1.0) * 1.2;
-    let y_hi = if measured.is_some() { y_hi } else { band * 1.25f64.powi(10) };
+    let y_hi = if published { band * 1.25f64.powi(10) } else { y_hi };
     let root = BitMapBackend::new(path, (1000, 700)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
@@ -73,17 +117,41 @@ pub fn speed_error_png(
         .y_desc("relative error")
         .label_style(("sans-serif", 14))
         .draw()?;
-    for (i, model) in ["corotational-hex", "linear-hex", "tensor-mass-svk", "tensor-mass-linear"]
-        .iter()
-        .enumerate()
-    {
+    let mut names: Vec<String> = Vec::new();
+    for (p, ..) in &usable {
+        if !names.contains(&p.series()) {
+            names.push(p.series());
+        }
+    }
+    for (i, name) in names.iter().enumerate() {
         let color = Palette99::pick(i).to_rgba();
         let series: Vec<(f64, f64)> =
-            usable.iter().filter(|p| p.0 == *model).map(|p| (p.1, p.2)).collect();
+            usable.iter().filter(|p| p.0.series() == *name).map(|p| (p.1, p.2)).collect();
         chart
             .draw_series(series.iter().map(|&(x, y)| Circle::new((x, y), 5, color.filled())))?
-            .label(*model)
+            .label(name.clone())
             .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
+    }
+    let liver = |condensed_only: bool| {
+        front(
+            usable
+                .iter()
+                .filter(|p| p.0.is_liver() && (!condensed_only || p.0.element == "condensed"))
+                .map(|p| (p.1, p.2))
+                .collect(),
+        )
+    };
+    for (label, line, width) in [
+        ("liver front, condensed elements", liver(true), 1),
+        ("liver front, every element kind", liver(false), 3),
+    ] {
+        if line.len() > 1 {
+            let style = BLACK.stroke_width(width);
+            chart
+                .draw_series(LineSeries::new(line, style))?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x - 8, y), (x + 8, y)], style));
+        }
     }
     if let Some(measured) = measured {
         let color = Palette99::pick(6).to_rgba();
@@ -113,6 +181,15 @@ pub fn speed_error_png(
                 chart.draw_series(std::iter::once(EmptyElement::at(at) + leader + text))?;
             }
         }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        return Ok(());
+    }
+    if !published {
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))

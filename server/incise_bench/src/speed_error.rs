@@ -1263,7 +1263,8 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             &HexForceField::new(&case.model, Formulation::Linear).with_executor(exec.clone()),
             &case.fixed,
         );
-        explicit_limits.push((case.scene.clone(), case.resolution.clone(), explicit_limit));
+        let mesh = format!("{} level {} {}", case.resolution, case.level, case.element);
+        explicit_limits.push((case.scene.clone(), mesh, explicit_limit));
         for &formulation in &formulations {
             let reference = match case.reference_model {
                 None => case.reference,
@@ -1389,7 +1390,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             "explicit stable dt per mesh (rest stiffness; an explicit row runs only at or below it):"
         );
         for (scene, resolution, limit) in &explicit_limits {
-            println!("  {scene:<11} {resolution:<14} {limit:.3e} s");
+            println!("  {scene:<11} {resolution:<36} {limit:.3e} s");
         }
     }
     if let Some(limit) = args.max_error {
@@ -1433,7 +1434,14 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
             path,
             &rows
                 .iter()
-                .map(|r| (r.model, r.scene.as_str(), r.steps_per_s, r.error_abs, r.stable))
+                .map(|r| crate::plot::Point {
+                    model: r.model,
+                    element: r.element,
+                    scene: &r.scene,
+                    steps_per_s: r.steps_per_s,
+                    error: r.error_abs,
+                    stable: r.stable,
+                })
                 .collect::<Vec<_>>(),
             (!args.peers.is_empty()).then_some(peers.as_slice()),
         )

@@ -75,7 +75,7 @@ pub fn incompatible_stiffness(grid: &BranchedGrid) -> Vec<Option<Mat24>> {
 /// on the voxels it owns, so after a cut only the elements the cut touched need it again.
 /// `voxels` is a buffer kept by a caller that asks for many elements.
 ///
-/// The integrals are taken through the moments of the owned voxels ([`Moments`]): every
+/// The integrals are taken through the moments of the owned voxels (see the module docs): every
 /// integrand is a product of one polynomial of degree at most two per local axis, so the 27
 /// moments of each material's voxels give `K_αα` and `K_αu` exactly, at a cost of 27 products
 /// per voxel instead of a quadrature's thousands.

@@ -42,13 +42,19 @@ use std::sync::Arc;
 mod moving;
 pub mod multigrid;
 mod organ;
+mod press;
 pub mod reference;
 
 /// Arguments of `incise-bench speed-error`.
 #[derive(clap::Args, Debug)]
 pub struct SpeedErrorArgs {
     /// Scenes to run: `all`, or a comma-separated list of `b1`, `b2`, `b3`, `b2-moving`, `c`,
-    /// `liver`. `b2-moving` is B2 with its pull travelling along the bottom edge (there and back
+    /// `liver`, `liver-press`. `liver-press` is the 13,648-voxel liver (`--liver-levels`,
+    /// `--elements`) hanging at rest and pushed upwards at its lowest point by a tool (2 N, rising
+    /// over 0.25 s, released at 1 s): each row runs 2 s from its own static equilibrium, all of
+    /// it timed, and its `trajectory_error` is the contact point's RMS distance from the same
+    /// liver at level 0 (dt = 0.5 ms, CG to 1e-9; about two minutes per model) over that
+    /// reference's peak displacement; `all` leaves it out. `b2-moving` is B2 with its pull travelling along the bottom edge (there and back
     /// every 100 ms): each row simulates 2 s from rest, all of it timed, and its
     /// `trajectory_error` is the pulled corner's RMS distance from the same model at dt = 0.1 ms
     /// (CG to 1e-12), over that reference's peak displacement (docs/benchmarks.md). Those two
@@ -105,6 +111,10 @@ pub struct SpeedErrorArgs {
     /// only to keep tests quick: the figures are then not the benchmark's).
     #[arg(long, default_value_t = 2.0, hide = true)]
     moving_seconds: f64,
+    /// Simulated seconds of each liver-press run and its reference (2 s by the protocol; shorter
+    /// only to keep tests quick).
+    #[arg(long, default_value_t = 2.0, hide = true)]
+    press_seconds: f64,
     /// Levels of the 13,648-voxel liver to run.
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     liver_levels: Vec<u32>,
@@ -709,7 +719,15 @@ fn reference_of(
     Ok(reference)
 }
 
-/// The model's name in the rows and in messages.
+/// The model's name in the rows.
+fn row_model(formulation: Formulation) -> &'static str {
+    match formulation {
+        Formulation::Linear => "linear-hex",
+        Formulation::Corotational => "corotational-hex",
+    }
+}
+
+/// The model's name in messages.
 fn model_name(formulation: Formulation) -> &'static str {
     match formulation {
         Formulation::Linear => "linear",
@@ -825,14 +843,15 @@ fn scheme_names(s: Scheme) -> (&'static str, &'static str) {
     }
 }
 
-/// A stepping closure for `case` with `scheme` at `dt` on `exec`, and the state it advances.
+/// A stepping closure for `case` with `scheme` at `dt` on `exec`: it advances a state under the
+/// loads it is given.
 fn stepper<'a>(
     case: &'a Case,
     formulation: Formulation,
     scheme: Scheme,
     dt: f64,
     exec: &Executor,
-) -> impl FnMut(&mut State) + 'a {
+) -> impl FnMut(&mut State, &Loads) + 'a {
     let mut ff = HexForceField::new(&case.model, formulation).with_executor(exec.clone());
     let damping = case.damping;
     let mut be = match scheme {
@@ -844,12 +863,12 @@ fn stepper<'a>(
         )),
         Scheme::Explicit => None,
     };
-    move |state: &mut State| match &mut be {
+    move |state: &mut State, loads: &Loads| match &mut be {
         Some(be) => {
-            be.step(&case.model, &mut ff, &case.fixed, &case.loads, state);
+            be.step(&case.model, &mut ff, &case.fixed, loads, state);
         }
         None => {
-            explicit_step(&case.model, &mut ff, &case.fixed, &case.loads, damping.alpha, dt, state);
+            explicit_step(&case.model, &mut ff, &case.fixed, loads, damping.alpha, dt, state);
         }
     }
 }
@@ -926,13 +945,13 @@ fn timed_rates(
 ) -> (f64, f64, f64) {
     let mut step = stepper(case, formulation, scheme, dt, exec);
     let mut state = State::at_rest(&case.model);
-    let steps = warm_up(args, || step(&mut state));
+    let steps = warm_up(args, || step(&mut state, &case.loads));
     let (timing, ()) = measure(
         args.repeats,
         || (),
         |()| {
             for _ in 0..steps {
-                step(&mut state);
+                step(&mut state, &case.loads);
             }
         },
     );
@@ -975,7 +994,7 @@ fn run_until_settled(
     let mut windows: Vec<f64> = Vec::new();
     let unstable = || Run { stable: false, settled: false, value: f64::NAN, x: Vec::new() };
     for k in 1..=max_steps {
-        step(&mut state);
+        step(&mut state, &case.loads);
         if state.x.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
             return unstable();
         }
@@ -1178,7 +1197,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     };
     let mut cases: Vec<Case> = Vec::new();
     let mut moving_scene = None;
-    let mut livers = None;
+    let (mut liver_wanted, mut press_wanted) = (false, false);
     for w in &wanted {
         match w.as_str() {
             "b1" => cases.push(block_case(args, "B1", "b1.toml", None)?),
@@ -1190,46 +1209,66 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                     cases.push(cantilever_case(args, n)?);
                 }
             }
-            "liver" => {
-                let coarsest = |levels: &[u32]| levels.iter().copied().max().unwrap_or(0);
-                eprintln!("building the livers' levels …");
-                let small = Liver::read(
-                    &args.scene_dir,
-                    "liver-13k",
-                    "liver_13k.toml",
-                    coarsest(&args.liver_levels),
-                )?;
-                let large = Liver::read(
-                    &args.scene_dir,
-                    "liver-109k",
-                    "liver_109k.toml",
-                    coarsest(&args.liver_109k_levels),
-                )?;
-                for (liver, levels) in
-                    [(&small, &args.liver_levels), (&large, &args.liver_109k_levels)]
-                {
-                    for &level in levels {
-                        for element in args.elements.iter().filter_map(|e| element_kind(e)) {
-                            // Level 0's elements are voxels: nothing inside them to relax.
-                            if level == 0 && element != "condensed" {
-                                continue;
-                            }
-                            cases.push(liver.case(level, element)?);
-                        }
-                    }
-                }
-                livers = Some((small, large));
-            }
+            "liver" => liver_wanted = true,
+            "liver-press" => press_wanted = true,
             other => {
-                bail!("unknown scene '{other}': expected all, b1, b2, b3, b2-moving, c or liver")
+                bail!(
+                    "unknown scene '{other}': expected all, b1, b2, b3, b2-moving, c, liver or liver-press"
+                )
             }
         }
     }
+    let coarsest = |levels: &[u32]| levels.iter().copied().max().unwrap_or(0);
+    let small = if liver_wanted || press_wanted {
+        eprintln!("building the livers' levels …");
+        Some(Liver::read(
+            &args.scene_dir,
+            "liver-13k",
+            "liver_13k.toml",
+            coarsest(&args.liver_levels),
+        )?)
+    } else {
+        None
+    };
+    let large = if liver_wanted {
+        Some(Liver::read(
+            &args.scene_dir,
+            "liver-109k",
+            "liver_109k.toml",
+            coarsest(&args.liver_109k_levels),
+        )?)
+    } else {
+        None
+    };
+    let elements: Vec<&'static str> =
+        args.elements.iter().filter_map(|e| element_kind(e)).collect();
+    let liver_cases = |liver: &Liver, levels: &[u32]| -> anyhow::Result<Vec<Case>> {
+        let mut out = Vec::new();
+        for &level in levels {
+            for &element in &elements {
+                // Level 0's elements are voxels: nothing inside them to relax.
+                if level == 0 && element != "condensed" {
+                    continue;
+                }
+                out.push(liver.case(level, element)?);
+            }
+        }
+        Ok(out)
+    };
+    if let (Some(small), Some(large)) = (&small, &large) {
+        cases.extend(liver_cases(small, &args.liver_levels)?);
+        cases.extend(liver_cases(large, &args.liver_109k_levels)?);
+    }
+    let mut press_cases = match (&small, press_wanted) {
+        (Some(small), true) => liver_cases(small, &args.liver_levels)?,
+        _ => Vec::new(),
+    };
     if let Some(limit) = args.max_elements {
         cases.retain(|c| c.model.elements.len() <= limit);
+        press_cases.retain(|c| c.model.elements.len() <= limit);
         moving_scene = moving_scene.filter(|m| m.elements() <= limit);
     }
-    if cases.is_empty() && moving_scene.is_none() {
+    if cases.is_empty() && moving_scene.is_none() && press_cases.is_empty() {
         bail!("no scene left to run (check --scene and --max-elements)");
     }
     let block_reference = if cases.iter().any(|c| is_scene_b(&c.scene)) {
@@ -1241,19 +1280,21 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    let liver_reference = match &livers {
-        Some((small, large)) if cases.iter().any(|c| c.scene.starts_with("liver")) => {
+    let liver_reference = match (&small, &large) {
+        (Some(small), Some(large)) if cases.iter().any(|c| c.scene.starts_with("liver")) => {
             Some(set_liver_references(&mut cases, small, large, &formulations)?)
         }
         _ => None,
     };
-    // The livers' levels are in the cases now; the rest is not needed any more.
-    drop(livers);
+    // The large liver's levels are in its cases now; the rest is not needed any more.
+    drop(large);
     // One executor for every row, so that INCISE_THREADS applies to the whole report; the
     // one-thread column runs the same rows again on an executor of one thread.
     let exec = Executor::configured(None, None);
     let one = Executor::new(1, Idle::DEFAULT_SPIN);
-    let bar = crate::progress::stages(cases.len() as u64 + u64::from(moving_scene.is_some()));
+    let bar = crate::progress::stages(
+        cases.len() as u64 + u64::from(moving_scene.is_some()) + u64::from(!press_cases.is_empty()),
+    );
     let mut rows = Vec::new();
     let mut explicit_limits = Vec::new();
     for case in &cases {
@@ -1314,11 +1355,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                     rows.push(Row {
                         scene: case.scene.clone(),
                         element: case.element,
-                        model: if formulation == Formulation::Linear {
-                            "linear-hex"
-                        } else {
-                            "corotational-hex"
-                        },
+                        model: row_model(formulation),
                         integrator,
                         solver,
                         resolution: case.resolution.clone(),
@@ -1357,6 +1394,17 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    let press = match (&small, press_cases.is_empty()) {
+        (Some(small), false) => {
+            bar.set_message(press::SCENE);
+            let cases: Vec<&Case> = press_cases.iter().collect();
+            let (press_rows, references) = press::rows(small, &cases, &formulations, args, &exec)?;
+            rows.extend(press_rows);
+            bar.inc(1);
+            references
+        }
+        _ => Vec::new(),
+    };
     bar.finish_and_clear();
     print_table(&rows);
     if !cases.is_empty() {
@@ -1380,6 +1428,9 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     }
     if let Some(liver) = &liver_reference {
         print_liver_reference(liver);
+    }
+    for reference in &press {
+        reference.print();
     }
     if let Some((scene, summary)) = &moving {
         summary.print(scene, args.repeats.max(1));
@@ -1463,6 +1514,10 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
         }
         if let Some(liver) = liver_reference {
             references.insert("liver".into(), liver);
+        }
+        if !press.is_empty() {
+            let runs: Vec<serde_json::Value> = press.iter().map(press::Reference::json).collect();
+            references.insert(press::SCENE.into(), runs.into());
         }
         if let Some(reference) = &block_reference {
             references.insert("B".into(), reference.json());
@@ -1877,7 +1932,14 @@ fn print_table(rows: &[Row]) {
             // Scene B's errors are signed: the sign says too stiff or too soft.
             Some(e) if is_scene_b(&r.scene) => format!("{:+.2} %", e * 100.0),
             Some(e) => format!("{:.2} %", e * 100.0),
-            None if r.stable && !r.settled && r.scene != moving::SCENE => "unsettled".to_string(),
+            // The moving and pressed scenes' rows are trajectories: they never settle.
+            None if r.stable
+                && !r.settled
+                && r.scene != moving::SCENE
+                && r.scene != press::SCENE =>
+            {
+                "unsettled".to_string()
+            }
             None => "-".to_string(),
         };
         println!(

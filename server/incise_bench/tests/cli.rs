@@ -448,6 +448,47 @@ fn speed_error_measures_the_liver_against_the_fine_liver() {
     );
 }
 
+/// The pressed liver: every row a trajectory against the level-0 reference's, with its peak's
+/// signed error; the reference's step and tolerance as documented.
+#[test]
+fn speed_error_presses_the_liver_and_compares_trajectories() {
+    let out = bench()
+        .args(["speed-error", "--scene", "liver-press", "--models", "linear"])
+        .args(["--liver-levels", "3", "--elements", "condensed", "--press-seconds", "0.05"])
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = last_json(&out);
+    let reference = &j["references"]["liver-13k-press"][0];
+    assert_eq!(reference["dt"], 5e-4, "{reference}");
+    assert_eq!(reference["model"], "linear-hex", "{reference}");
+    let peak = reference["peak_displacement"].as_f64().unwrap();
+    assert!(peak > 0.0 && peak < 0.1, "the tool moves the organ, not away: {reference}");
+    let rows = j["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 3 * 2, "jacobi-cg, cholesky-cg and explicit at 1 and 10 ms: {j}");
+    for r in rows {
+        assert_eq!(r["scene"], "liver-13k-press", "{r}");
+        assert!(
+            r["error"].is_null() && r["settled"] == false,
+            "a trajectory, not a settled value: {r}"
+        );
+        if r["stable"] != true {
+            continue;
+        }
+        let e = r["trajectory_error"].as_f64().unwrap();
+        assert!(e.is_finite() && e >= 0.0, "{r}");
+        let signed = r["error_signed"]["peak"].as_f64().unwrap();
+        assert!(signed > -1.0 && signed.is_finite(), "{r}");
+    }
+    let implicit = rows
+        .iter()
+        .filter(|r| r["integrator"] == "implicit-euler")
+        .map(|r| r["stable"] == true)
+        .collect::<Vec<_>>();
+    assert!(implicit.iter().all(|&s| s), "implicit Euler is stable at both steps: {j}");
+}
+
 #[test]
 fn coexist_json_has_a_row_per_setting_with_the_contract_keys() {
     let out =

@@ -53,7 +53,7 @@ pub struct SpeedErrorArgs {
     /// `--elements`) hanging at rest and pushed upwards at its lowest point by a tool (2 N, rising
     /// over 0.25 s, released at 1 s): each row runs 2 s from its own static equilibrium, all of
     /// it timed, and its `trajectory_error` is the contact point's RMS distance from the same
-    /// liver at level 0 (dt = 0.5 ms, CG to 1e-9; about two minutes per model) over that
+    /// liver at level 0 (dt = 0.5 ms, CG to 1e-9; about a minute per model) over that
     /// reference's peak displacement; `all` leaves it out. `b2-moving` is B2 with its pull travelling along the bottom edge (there and back
     /// every 100 ms): each row simulates 2 s from rest, all of it timed, and its
     /// `trajectory_error` is the pulled corner's RMS distance from the same model at dt = 0.1 ms

@@ -11,7 +11,7 @@
 //!
 //! The reference is the finest model whose 2 s of dynamics are affordable here: the same liver at
 //! level 0 with the row's model, stepped at [`REFERENCE_DT`] with CG to [`REFERENCE_TOLERANCE`]
-//! (about two minutes per model on a 2-core machine; the 109,201-voxel liver's level 0 would take
+//! (about a minute per model on a 2-core machine; the 109,201-voxel liver's level 0 would take
 //! an hour or more: an operator product alone costs 15 ms there, and an implicit step several).
 //! A row's `trajectory_error` is the RMS over its steps of the distance between its contact
 //! point's displacement and the reference's at the same time, over the reference's largest

@@ -181,48 +181,33 @@ pub fn speed_error_png(
                 chart.draw_series(std::iter::once(EmptyElement::at(at) + leader + text))?;
             }
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
-        root.present()?;
-        return Ok(());
-    }
-    if !published {
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
-        root.present()?;
-        return Ok(());
-    }
-    for (k, (name, rates)) in PEERS.iter().enumerate() {
-        let color = Palette99::pick(k + 6).to_rgba();
-        for (b, &rate) in rates.iter().enumerate() {
-            if rate > x_lo && rate < x_hi {
-                // Their error is not published: they sit in a band at the top, at their speed only.
-                // One row per (peer, scene) so the labels do not overlap.
-                let top = band * 1.25f64.powi((3 * k + b) as i32);
-                chart.draw_series(std::iter::once(TriangleMarker::new(
-                    (rate, top),
-                    7,
-                    color.filled(),
-                )))?;
-                chart.draw_series(std::iter::once(Text::new(
-                    format!("{name} B{} (speed only)", b + 1),
-                    (rate, top),
-                    ("sans-serif", 11),
-                )))?;
+    } else if published {
+        for (k, (name, rates)) in PEERS.iter().enumerate() {
+            let color = Palette99::pick(k + 6).to_rgba();
+            for (b, &rate) in rates.iter().enumerate() {
+                if rate > x_lo && rate < x_hi {
+                    // Their error is not published: they sit in a band at the top, at their speed only.
+                    // One row per (peer, scene) so the labels do not overlap.
+                    let top = band * 1.25f64.powi((3 * k + b) as i32);
+                    chart.draw_series(std::iter::once(TriangleMarker::new(
+                        (rate, top),
+                        7,
+                        color.filled(),
+                    )))?;
+                    chart.draw_series(std::iter::once(Text::new(
+                        format!("{name} B{} (speed only)", b + 1),
+                        (rate, top),
+                        ("sans-serif", 11),
+                    )))?;
+                }
             }
         }
+        chart.draw_series(std::iter::once(Text::new(
+            "peers: published speed only (docs/benchmarks.md, first run); their error is not published",
+            (x_lo * 1.1, band / 1.1),
+            ("sans-serif", 12),
+        )))?;
     }
-    chart.draw_series(std::iter::once(Text::new(
-        "peers: published speed only (docs/benchmarks.md, first run); their error is not published",
-        (x_lo * 1.1, band / 1.1),
-        ("sans-serif", 12),
-    )))?;
     chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
     root.present()?;
     Ok(())

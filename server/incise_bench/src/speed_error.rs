@@ -239,6 +239,37 @@ struct Row {
     stable: bool,
 }
 
+impl Row {
+    /// The row of `case` with `formulation` and `scheme` at `dt`, its figures still empty.
+    fn of(case: &Case, formulation: Formulation, scheme: Scheme, dt: f64) -> Self {
+        let (integrator, solver) = scheme_names(scheme);
+        Self {
+            scene: case.scene.clone(),
+            model: row_model(formulation),
+            element: case.element,
+            integrator,
+            solver,
+            resolution: case.resolution.clone(),
+            level: case.level,
+            elements: case.model.elements.len(),
+            dofs: case.model.dof_count(),
+            dt,
+            steps_per_s: 0.0,
+            steps_per_s_min: 0.0,
+            steps_per_s_max: 0.0,
+            steps_per_s_one_thread: None,
+            error: None,
+            error_abs: None,
+            error_signed: None,
+            error_level0: None,
+            error_static: None,
+            trajectory_error: None,
+            settled: false,
+            stable: false,
+        }
+    }
+}
+
 /// What a case compares with its reference.
 #[derive(Clone, Debug)]
 enum Probe {
@@ -1346,23 +1377,12 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                         }
                         _ => None,
                     };
-                    let (integrator, solver) = scheme_names(scheme);
                     let Errors { error, signed, level0 } = if outcome.settled {
                         errors_of(outcome.value, &outcome.x)
                     } else {
                         Errors::default()
                     };
                     rows.push(Row {
-                        scene: case.scene.clone(),
-                        element: case.element,
-                        model: row_model(formulation),
-                        integrator,
-                        solver,
-                        resolution: case.resolution.clone(),
-                        level: case.level,
-                        elements: case.model.elements.len(),
-                        dofs: case.model.dof_count(),
-                        dt,
                         steps_per_s: median,
                         steps_per_s_min: min,
                         steps_per_s_max: max,
@@ -1372,9 +1392,9 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
                         error_signed: signed,
                         error_level0: level0,
                         error_static,
-                        trajectory_error: None,
                         settled: outcome.settled,
                         stable: ok,
+                        ..Row::of(case, formulation, scheme, dt)
                     });
                 }
             }

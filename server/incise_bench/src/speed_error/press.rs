@@ -18,7 +18,7 @@
 //! displacement; `error_signed.peak` is its largest displacement's signed error.
 
 use super::organ::Sampler;
-use super::{Case, Liver, Preconditioner, Row, Scheme, SpeedErrorArgs, scheme_names, stepper};
+use super::{Case, Liver, Preconditioner, Row, Scheme, SpeedErrorArgs, stepper};
 use anyhow::Context;
 use incise_fem::model::{Loads, State};
 use incise_fem::ode::LinearSolver;
@@ -256,31 +256,16 @@ pub(super) fn rows(
                     } else {
                         (None, None)
                     };
-                    let (integrator, solver) = scheme_names(scheme);
                     let rate = if stable { (t.u.len() - 1) as f64 / t.seconds } else { 0.0 };
                     rows.push(Row {
                         scene: SCENE.into(),
-                        model: super::row_model(formulation),
-                        element: case.element,
-                        integrator,
-                        solver,
-                        resolution: case.resolution.clone(),
-                        level: case.level,
-                        elements: case.model.elements.len(),
-                        dofs: case.model.dof_count(),
-                        dt,
                         steps_per_s: rate,
                         steps_per_s_min: rate,
                         steps_per_s_max: rate,
-                        steps_per_s_one_thread: None,
-                        error: None,
-                        error_abs: None,
                         error_signed: peak_error.map(|e| BTreeMap::from([("peak", e)])),
-                        error_level0: None,
-                        error_static: None,
                         trajectory_error,
-                        settled: false,
                         stable,
+                        ..Row::of(case, formulation, scheme, dt)
                     });
                 }
             }

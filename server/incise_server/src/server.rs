@@ -213,6 +213,25 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     if let Some(gpu) = incise_scene::attach_gpu(&mut sim) {
         tracing::info!("{gpu}");
     }
+    if let Some(c) = sim.calibration() {
+        for l in &c.levels {
+            tracing::info!(
+                "model.kind = \"auto\": level {} {} ({} elements, {} unknowns), estimated error {:.2} % against level {}",
+                l.level,
+                l.element.name(),
+                l.elements,
+                l.dofs,
+                100.0 * l.error,
+                c.reference_level
+            );
+        }
+        tracing::info!(
+            "model.kind = \"auto\": runs level {} with {} elements, the coarsest within max_error = {:.1} %",
+            c.chosen,
+            c.chosen_element.name(),
+            100.0 * c.max_error
+        );
+    }
     let tools: Vec<String> = config.tools.iter().map(|t| t.name.clone()).collect();
     let shared = LoopShared::new(tools.len());
     let faults = Arc::new(Faults::default());

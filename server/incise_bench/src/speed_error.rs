@@ -1017,8 +1017,6 @@ fn run_until_settled(
     const SETTLED: f64 = 1e-5;
     let mut step = stepper(case, formulation, scheme, dt, exec);
     let mut state = State::at_rest(&case.model);
-    let size = case.model.rest.iter().flat_map(|p| p.iter()).fold(0.0f64, |m, &c| m.max(c.abs()));
-    let mass = case.model.total_mass();
     let window = (0.1 / dt).round().max(1.0) as usize;
     let min_steps = (args.stable_seconds / dt).ceil() as usize;
     let max_steps = min_steps.max((args.settle_seconds / dt).ceil() as usize);
@@ -1026,18 +1024,7 @@ fn run_until_settled(
     let unstable = || Run { stable: false, settled: false, value: f64::NAN, x: Vec::new() };
     for k in 1..=max_steps {
         step(&mut state, &case.loads);
-        if state.x.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
-            return unstable();
-        }
-        let mean: f64 = state
-            .x
-            .iter()
-            .zip(&case.model.rest)
-            .zip(&case.model.lumped_mass)
-            .map(|((p, q), m)| m * (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f64>().sqrt())
-            .sum::<f64>()
-            / mass;
-        if mean > size {
+        if !bounded(case, &state.x) {
             return unstable();
         }
         if k % window == 0 {
@@ -1053,6 +1040,24 @@ fn run_until_settled(
     }
     let value = measured(case, &state.x);
     Run { stable: true, settled: false, value, x: state.x }
+}
+
+/// Whether positions `x` of `case` are finite and its material's motion bounded: the
+/// mass-weighted mean displacement below the scene's size (nodes of nearly empty elements carry
+/// almost no material and may swing far without meaning anything).
+fn bounded(case: &Case, x: &[Vec3]) -> bool {
+    if x.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
+        return false;
+    }
+    let size = case.model.rest.iter().flat_map(|p| p.iter()).fold(0.0f64, |m, &c| m.max(c.abs()));
+    let mean: f64 = x
+        .iter()
+        .zip(&case.model.rest)
+        .zip(&case.model.lumped_mass)
+        .map(|((p, q), m)| m * (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f64>().sqrt())
+        .sum::<f64>()
+        / case.model.total_mass();
+    mean <= size
 }
 
 /// The order of the pulled corner's discretisation error in the cell size for trilinear

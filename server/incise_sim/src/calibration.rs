@@ -95,9 +95,11 @@ pub fn calibrate(
         if dofs > REFERENCE_MAX_DOFS && !solved.is_empty() {
             break;
         }
+        // The grid has no levels above its deepest: a hierarchy stops there, and a level with
+        // none above it is factorised.
         let coarser: Vec<BranchedGrid> = if dofs > CHOLESKY_MAX_DOFS {
             let mut out = Vec::new();
-            for l in level + 1..=level + MULTIGRID_DEPTH {
+            for l in level + 1..=(level + MULTIGRID_DEPTH).min(incise_grid::grid::MAX_LEVELS) {
                 let built = grids.get_mut(l as usize).and_then(Option::take);
                 out.push(match built {
                     Some(g) => g,
@@ -119,12 +121,11 @@ pub fn calibrate(
             let shift = centre_shift(config, &grid, &model, &coarser, exec)?;
             solved.push((level, kind, model.elements.len(), model.dof_count(), shift));
         }
-        // Keep this level and the ones just used for the finer levels' hierarchies.
-        if grids.len() <= (level + MULTIGRID_DEPTH) as usize {
-            grids.resize_with((level + MULTIGRID_DEPTH) as usize + 1, || None);
-        }
-        for (l, g) in (level + 1..).zip(coarser) {
-            grids[l as usize] = Some(g);
+        // Keep what the next finer level's hierarchy may use: this level and the one above it.
+        grids.resize_with(grids.len().max(level as usize + 2), || None);
+        grids.truncate(level as usize + MULTIGRID_DEPTH as usize);
+        if let Some(above) = coarser.into_iter().next() {
+            grids[level as usize + 1] = Some(above);
         }
         grids[level as usize] = Some(grid);
     }

@@ -132,6 +132,7 @@ fn bad_input_gets_a_clear_error() {
         assert!(help.contains(flag), "speed-error --help lists {flag}:\n{help}");
     }
     assert!(help.contains("b2-moving"), "speed-error --help names the moving scene:\n{help}");
+    assert!(help.contains("liver-press"), "speed-error --help names the pressed liver:\n{help}");
 
     // Richardson extrapolation needs the second mesh finer on every axis.
     let out = bench()

@@ -350,8 +350,9 @@ impl Multigrid {
         let s = here;
         level.fixed.project(&mut s.r);
         s.z.fill([0.0; 3]);
-        for _ in 0..self.sweeps {
-            self.smooth(i, s);
+        for sweep in 0..self.sweeps {
+            // From z = 0 the first sweep's product is zero: it is left out.
+            self.smooth(i, s, sweep == 0);
         }
         // The residual after pre-smoothing, restricted.
         self.apply(i, &s.z, &mut s.a);
@@ -364,14 +365,19 @@ impl Multigrid {
         prolong.add_prolonged(&below[0].z, &mut s.z);
         level.fixed.project(&mut s.z);
         for _ in 0..self.sweeps {
-            self.smooth(i, s);
+            self.smooth(i, s, false);
         }
     }
 
-    /// One damped block-Jacobi sweep: `z += ω D⁻¹ (r − A z)`.
-    fn smooth(&self, i: usize, s: &mut Scratch) {
+    /// One damped block-Jacobi sweep: `z += ω D⁻¹ (r − A z)`; with `at_zero` (`z` is zero) the
+    /// product is not taken.
+    fn smooth(&self, i: usize, s: &mut Scratch, at_zero: bool) {
         let level = &self.levels[i];
-        self.apply(i, &s.z, &mut s.a);
+        if at_zero {
+            s.a.fill([0.0; 3]);
+        } else {
+            self.apply(i, &s.z, &mut s.a);
+        }
         for (n, ((z, r), a)) in s.z.iter_mut().zip(&s.r).zip(&s.a).enumerate() {
             if level.fixed.is_fixed(n) {
                 *z = [0.0; 3];

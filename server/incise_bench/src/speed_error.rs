@@ -456,27 +456,15 @@ fn cantilever_case(args: &SpeedErrorArgs, n: usize) -> anyhow::Result<Case> {
     Ok(case)
 }
 
-/// A liver scene at `level`, probed by its centre of mass, on the tissue connected to its hold
-/// ([`supported_volume`]'s result): a fragment striding cut loose would have no static answer and
-/// would fall for ever.
-fn liver_case(
-    name: &str,
-    supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
-    level: u32,
-) -> anyhow::Result<Case> {
-    let (config, volume, stride) = supported;
-    let mut config = config.clone();
-    at_level(&mut config, level);
-    let simulation = Simulation::new(&config, volume, &config.name)?;
-    liver_case_from(name, &simulation, *stride, "condensed")
-}
-
 /// The element kind `--elements` names, as the rows spell it.
 fn element_kind(name: &str) -> Option<&'static str> {
     ElementKind::from_name(name).map(ElementKind::name)
 }
 
-/// [`liver_case`] from its built scene, with elements of kind `element` (see [`element_kind`]).
+/// A liver case from its built scene (a level of a [`Liver`]), probed by its centre of mass,
+/// with elements of kind `element` (see [`element_kind`]). The scene holds only the tissue
+/// connected to its hold ([`supported_volume`]'s result): a fragment striding cut loose would
+/// have no static answer and would fall for ever.
 fn liver_case_from(
     name: &str,
     simulation: &Simulation,
@@ -554,7 +542,7 @@ impl Liver {
 }
 
 /// The scenes of a supported liver (see [`supported_volume`]) at levels `finest` to `coarsest`:
-/// a multigrid's levels (see [`hierarchy_of`]). At level 0 the model is [`liver_case`]'s.
+/// a multigrid's levels (see [`hierarchy_of`]).
 fn liver_levels(
     supported: &(SceneConfig, incise_grid::LabelVolume, [usize; 3]),
     finest: u32,
@@ -846,7 +834,7 @@ fn set_liver_references(
             s if s == large.scene => large,
             _ => continue,
         };
-        let grid = liver.levels[case.level as usize].grid().context("a liver has a grid")?;
+        let (grid, _) = liver.level(case.level)?;
         let sampler = organ::Sampler::new(liver.level(0)?, (grid, &case.model), points(liver))?;
         case.organ = Some(Organ { sampler, reference: Arc::clone(&reference) });
         let at_level0 = |f: Formulation| {
@@ -1017,6 +1005,7 @@ fn run_until_settled(
     const SETTLED: f64 = 1e-5;
     let mut step = stepper(case, formulation, scheme, dt, exec);
     let mut state = State::at_rest(&case.model);
+    let bounds = Bounds::of(case);
     let window = (0.1 / dt).round().max(1.0) as usize;
     let min_steps = (args.stable_seconds / dt).ceil() as usize;
     let max_steps = min_steps.max((args.settle_seconds / dt).ceil() as usize);
@@ -1024,7 +1013,7 @@ fn run_until_settled(
     let unstable = || Run { stable: false, settled: false, value: f64::NAN, x: Vec::new() };
     for k in 1..=max_steps {
         step(&mut state, &case.loads);
-        if !bounded(case, &state.x) {
+        if !bounds.hold(case, &state.x) {
             return unstable();
         }
         if k % window == 0 {
@@ -1042,22 +1031,35 @@ fn run_until_settled(
     Run { stable: true, settled: false, value, x: state.x }
 }
 
-/// Whether positions `x` of `case` are finite and its material's motion bounded: the
+/// What a run of a case must stay within to count as stable: finite, and its material's
 /// mass-weighted mean displacement below the scene's size (nodes of nearly empty elements carry
 /// almost no material and may swing far without meaning anything).
-fn bounded(case: &Case, x: &[Vec3]) -> bool {
-    if x.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
-        return false;
+struct Bounds {
+    size: f64,
+    mass: f64,
+}
+
+impl Bounds {
+    fn of(case: &Case) -> Self {
+        let rest = &case.model.rest;
+        let size = rest.iter().flat_map(|p| p.iter()).fold(0.0f64, |m, &c| m.max(c.abs()));
+        Self { size, mass: case.model.total_mass() }
     }
-    let size = case.model.rest.iter().flat_map(|p| p.iter()).fold(0.0f64, |m, &c| m.max(c.abs()));
-    let mean: f64 = x
-        .iter()
-        .zip(&case.model.rest)
-        .zip(&case.model.lumped_mass)
-        .map(|((p, q), m)| m * (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f64>().sqrt())
-        .sum::<f64>()
-        / case.model.total_mass();
-    mean <= size
+
+    /// Whether positions `x` of `case` are within the bounds.
+    fn hold(&self, case: &Case, x: &[Vec3]) -> bool {
+        if x.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
+            return false;
+        }
+        let mean: f64 = x
+            .iter()
+            .zip(&case.model.rest)
+            .zip(&case.model.lumped_mass)
+            .map(|((p, q), m)| m * (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f64>().sqrt())
+            .sum::<f64>()
+            / self.mass;
+        mean <= self.size
+    }
 }
 
 /// The order of the pulled corner's discretisation error in the cell size for trilinear

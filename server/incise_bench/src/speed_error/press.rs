@@ -92,7 +92,7 @@ struct Probe {
 
 impl Probe {
     fn new(liver: &Liver, case: &Case, contact: &Contact) -> anyhow::Result<Self> {
-        let grid = liver.levels[case.level as usize].grid().context("a liver has a grid")?;
+        let (grid, _) = liver.level(case.level)?;
         let sampler = Sampler::new(liver.level(0)?, (grid, &case.model), contact.voxels.clone())?;
         let unit = sampler.mean_load([1.0, 0.0, 0.0], case.model.node_count());
         let weights: Vec<(usize, f64)> =
@@ -113,7 +113,7 @@ impl Probe {
 }
 
 /// One run: the contact point's displacement from the start after every step (and at the
-/// start), whether it stayed finite and bounded (see `bounded`), and its wall time.
+/// start), whether it stayed within its bounds (see `Bounds`), and its wall time.
 struct Trajectory {
     u: Vec<Vec3>,
     bounded: bool,
@@ -144,6 +144,7 @@ fn run(
     let mut u = Vec::with_capacity(steps + 1);
     u.push([0.0; 3]);
     let mut loads = Loads { gravity: case.loads.gravity, nodal: case.loads.nodal.clone() };
+    let bounds = super::Bounds::of(case);
     let started = Instant::now();
     let mut bounded = true;
     for k in 1..=steps {
@@ -162,7 +163,7 @@ fn run(
                 .map(|(f, g)| std::array::from_fn(|a| g[a] + s * f[a])),
         );
         step(&mut state, &loads);
-        if !super::bounded(case, &state.x) {
+        if !bounds.hold(case, &state.x) {
             bounded = false;
             break;
         }

@@ -15,14 +15,10 @@
 //! RMS of the difference of the two fields relative to the fine field's RMS.
 
 use super::organ::Measures;
-use super::{
-    Case, Preconditioner, hierarchy_of, liver_case, liver_levels, static_positions,
-    supported_volume,
-};
+use super::{Case, Liver, Preconditioner, static_positions};
 use anyhow::{Context, bail};
 use incise_fem::Formulation;
 use incise_math::Vec3;
-use incise_sim::Simulation;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -81,49 +77,34 @@ pub fn run(args: &ReferenceArgs) -> anyhow::Result<()> {
         "block-jacobi" => false,
         other => bail!("--solver: unknown solver {other:?}; expected multigrid or block-jacobi"),
     };
-    let small = supported_volume(&args.scene_dir, "liver_13k.toml")?;
-    let large = supported_volume(&args.scene_dir, "liver_109k.toml")?;
-    let coarse = liver_case("liver-13k", &small, 0)?;
-    let fine = liver_case("liver-109k", &large, 0)?;
-    let matching = Matching::new(&coarse, &small.1, &fine, &large.1)?;
-    // The multigrid's levels, built once for both models (the hierarchy of each model is
-    // built within its solve's time).
-    let levels = if multigrid {
-        Some((liver_levels(&small, 0, 3)?, liver_levels(&large, 0, 3)?))
-    } else {
-        None
-    };
+    // Both livers built at levels 0 to 3 once, for both models: the multigrid's levels (the
+    // hierarchy of each model is built within its solve's time).
+    let small = Liver::read(&args.scene_dir, "liver-13k", "liver_13k.toml", 0)?;
+    let large = Liver::read(&args.scene_dir, "liver-109k", "liver_109k.toml", 0)?;
+    let coarse = small.case(0, "condensed")?;
+    let fine = large.case(0, "condensed")?;
+    let matching = Matching::new(&coarse, &small.supported.1, &fine, &large.supported.1)?;
     let mut rows = Vec::new();
     for (formulation, name) in formulations {
-        let solve = |case: &Case,
-                     levels: Option<&[Simulation]>,
-                     what: &str|
-         -> anyhow::Result<(Vec<Vec3>, f64)> {
+        let solve = |liver: &Liver, case: &Case, what: &str| -> anyhow::Result<(Vec<Vec3>, f64)> {
             eprintln!(
                 "{name}: solving {what} at level 0 ({} nodes) statically with {} …",
                 case.model.node_count(),
                 args.solver
             );
             let start = Instant::now();
-            let exec = incise_fem::Executor::default();
-            let mut hierarchy = match levels {
-                Some(levels) => Some(hierarchy_of(levels, formulation, (0.0, 1.0), 2, &exec)?),
-                None => None,
-            };
-            let mut with = match hierarchy.as_mut() {
-                Some(mg) => Preconditioner::Multigrid(mg),
-                None => Preconditioner::BlockJacobi,
-            };
-            let x = static_positions(case, formulation, &mut with)
-                .with_context(|| format!("{name}: the static solve of {what} did not converge"))?;
+            let x = if multigrid {
+                liver.static_level0(case, formulation)?
+            } else {
+                static_positions(case, formulation, &mut Preconditioner::BlockJacobi)
+            }
+            .with_context(|| format!("{name}: the static solve of {what} did not converge"))?;
             let s = start.elapsed().as_secs_f64();
             eprintln!("  {s:.1} s");
             Ok((x, s))
         };
-        let (xc, coarse_solve_s) =
-            solve(&coarse, levels.as_ref().map(|l| &l.0[..]), "the 13,648-voxel liver")?;
-        let (xf, fine_solve_s) =
-            solve(&fine, levels.as_ref().map(|l| &l.1[..]), "the 109,201-voxel liver")?;
+        let (xc, coarse_solve_s) = solve(&small, &coarse, "the 13,648-voxel liver")?;
+        let (xf, fine_solve_s) = solve(&large, &fine, "the 109,201-voxel liver")?;
         rows.push(matching.compare(name, &coarse, &xc, &fine, &xf, coarse_solve_s, fine_solve_s));
     }
     print(&rows);

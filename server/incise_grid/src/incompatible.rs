@@ -22,7 +22,6 @@
 
 use crate::grid::BranchedGrid;
 use crate::hex8::{Mat24, corner};
-use crate::topology::coords;
 
 /// A pivot below this fraction of its diagonal entry marks a bubble the owned voxels do not
 /// strain (cannot happen for a cell's own voxels, kept for safety against rounding).
@@ -82,16 +81,19 @@ pub fn incompatible_stiffness(grid: &BranchedGrid) -> Vec<Option<Mat24>> {
 ///
 /// # Panics
 /// Only on a broken grid invariant (a live element without voxels or matrices).
-pub fn element_stiffness(grid: &BranchedGrid, id: u32, voxels: &mut Vec<u32>) -> Option<Mat24> {
-    let top = grid.top();
-    let e = top.element(id)?;
+pub fn element_stiffness(
+    grid: &BranchedGrid,
+    id: u32,
+    voxels: &mut Vec<(u32, [u32; 3])>,
+) -> Option<Mat24> {
+    grid.top().element(id)?;
     let k_uu = &grid.matrices(id).expect("live element has matrices").stiffness;
     if grid.top_level() == 0 {
         return Some(k_uu.clone());
     }
     voxels.clear();
-    grid.element_voxels_into(id, voxels);
-    let moments = material_moments(grid, top.cell_coords(e.cell), voxels);
+    grid.element_voxel_offsets_into(id, voxels);
+    let moments = material_moments(grid, voxels);
     let elasticities: Vec<[[f64; 6]; 6]> =
         grid.materials().map(|(_, m)| elasticity(m.youngs_modulus, m.poisson_ratio)).collect();
     let (k_aa, k_au) = bubble_matrices(&moments, &elasticities, grid.element_size());
@@ -108,43 +110,71 @@ type Poly = [f64; 3];
 /// A product of one [`Poly`] per local axis.
 type Separable = [Poly; 3];
 
-/// The moments of the `voxels` (owned by the element in cell `cell`) per material, as
-/// `(material index, moments)` in ascending material order, so that the matrices are summed in an
-/// order that does not depend on which voxel came first.
-fn material_moments(grid: &BranchedGrid, cell: [u32; 3], voxels: &[u32]) -> Vec<(usize, Moments)> {
+/// The moments of the `voxels` (owned by one element, with their offsets in its cell) per
+/// material, as
+/// `(material index, moments)` in ascending material order.
+///
+/// A voxel at offset `(i, j, k)` in a cell of `p` voxels per axis adds
+/// `X_a(i) Y_b(j) Z_c(k) / ((a+1)(b+1)(c+1) p^(a+b+c+3))` to moment `(a, b, c)`, with the integers
+/// `X_a(i) = (i+1)^(a+1) − i^(a+1)`. The integer numerators are summed exactly (a full cell's sum
+/// is `p^(a+b+c+3)`, at most 2^45 at level 5), so the moments are each rounded once, whatever order the voxels
+/// come in: a cut in place and a rebuild give the same bits. The sum runs in two passes: each
+/// voxel adds its three `X_a(i)` to its row `(j, k)`, then each row is weighted by `Y_b Z_c`.
+fn material_moments(grid: &BranchedGrid, voxels: &[(u32, [u32; 3])]) -> Vec<(usize, Moments)> {
     let per = 1u32 << grid.top_level();
-    let dims = grid.fine().dims();
-    let mut moments: Vec<(usize, Moments)> = Vec::new();
-    for &v in voxels {
-        let c = coords(v, dims);
+    let p = per as usize;
+    let numerators: Vec<[i64; 3]> = (0..p)
+        .map(|i| {
+            let (lo, hi) = (i as i64, i as i64 + 1);
+            [hi - lo, hi * hi - lo * lo, hi * hi * hi - lo * lo * lo]
+        })
+        .collect();
+    // Per material: the row sums `Σ X_a(i)` over the voxels of row `(j, k)`, at `j + p k`.
+    let mut rows: Vec<(usize, Vec<[i64; 3]>)> = Vec::new();
+    for &(v, o) in voxels {
         let m = usize::from(grid.fine().material(v).expect("owned voxel holds material"));
-        let at = if let Some(at) = moments.iter().position(|(mm, _)| *mm == m) {
+        let at = if let Some(at) = rows.iter().position(|(mm, _)| *mm == m) {
             at
         } else {
-            moments.push((m, [0.0; 27]));
-            moments.len() - 1
+            rows.push((m, vec![[0; 3]; p * p]));
+            rows.len() - 1
         };
-        add_voxel(&mut moments[at].1, std::array::from_fn(|a| c[a] - cell[a] * per), per);
-    }
-    moments.sort_unstable_by_key(|(m, _)| *m);
-    moments
-}
-
-/// Adds the voxel at offset `o` within a cell of `per` voxels per axis to `m`.
-fn add_voxel(m: &mut Moments, o: [u32; 3], per: u32) {
-    let axis = |a: usize| -> [f64; 3] {
-        let (lo, hi) = (f64::from(o[a]) / f64::from(per), f64::from(o[a] + 1) / f64::from(per));
-        [hi - lo, (hi * hi - lo * lo) / 2.0, (hi * hi * hi - lo * lo * lo) / 3.0]
-    };
-    let (x, y, z) = (axis(0), axis(1), axis(2));
-    for (c, zc) in z.iter().enumerate() {
-        for (b, yb) in y.iter().enumerate() {
-            let yz = yb * zc;
-            for (a, xa) in x.iter().enumerate() {
-                m[a + 3 * b + 9 * c] += xa * yz;
-            }
+        let row = &mut rows[at].1[o[1] as usize + p * o[2] as usize];
+        for (r, n) in row.iter_mut().zip(&numerators[o[0] as usize]) {
+            *r += n;
         }
     }
+    let scale: [f64; 27] = std::array::from_fn(|idx| {
+        let (a, b, c) = (idx % 3, (idx / 3) % 3, idx / 9);
+        let power = f64::from(per).powi((a + b + c + 3) as i32);
+        ((a + 1) * (b + 1) * (c + 1)) as f64 * power
+    });
+    let mut moments: Vec<(usize, Moments)> = rows
+        .into_iter()
+        .map(|(m, rows)| {
+            let mut sum = [0i64; 27];
+            for (at, row) in rows.iter().enumerate() {
+                if *row == [0; 3] {
+                    continue;
+                }
+                let (y, z) = (&numerators[at % p], &numerators[at / p]);
+                for (c, zc) in z.iter().enumerate() {
+                    for (b, yb) in y.iter().enumerate() {
+                        let yz = yb * zc;
+                        for (a, xa) in row.iter().enumerate() {
+                            sum[a + 3 * b + 9 * c] += xa * yz;
+                        }
+                    }
+                }
+            }
+            // At most 2^45, so the conversion does not round.
+            #[allow(clippy::cast_precision_loss)]
+            let moments: Moments = std::array::from_fn(|i| sum[i] as f64 / scale[i]);
+            (m, moments)
+        })
+        .collect();
+    moments.sort_unstable_by_key(|(m, _)| *m);
+    moments
 }
 
 /// `∫ f ds` over the voxels whose moments are `m`.
@@ -254,6 +284,7 @@ mod tests {
     use super::*;
     use crate::hex8::{gauss_points, shape_gradient};
     use crate::procedural::from_fn;
+    use crate::topology::coords;
     use crate::{LabelVolume, Material, MaterialTable};
 
     /// `B` (6 × 24): the strain of the element's trilinear field at local point `s`.
@@ -375,8 +406,8 @@ mod tests {
             let mut checked = 0;
             for (id, e) in grid.top().elements() {
                 voxels.clear();
-                grid.element_voxels_into(id, &mut voxels);
-                let moments = material_moments(&grid, grid.top().cell_coords(e.cell), &voxels);
+                grid.element_voxel_offsets_into(id, &mut voxels);
+                let moments = material_moments(&grid, &voxels);
                 let (aa, au) = bubble_matrices(&moments, &elasticities, grid.element_size());
                 let (qa, qu) = by_quadrature(&grid, id);
                 // Both are exact integrals of the same polynomials: they differ by rounding,

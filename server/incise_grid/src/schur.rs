@@ -29,22 +29,41 @@ pub(crate) fn complement(k: &Mat24, mut a: Vec<f64>, mut b: Vec<f64>, null_pivot
             a[r * n + j] = s / l;
         }
     }
-    // Y = L⁻¹ B, in place; then Bᵀ A⁺ B = Yᵀ Y.
-    for col in 0..24 {
-        for r in 0..n {
-            if null[r] {
-                b[r * 24 + col] = 0.0;
-                continue;
+    // Y = L⁻¹ B, in place, a row at a time so that the inner loops run along the 24 columns.
+    // Each sum starts from −0.0 and adds in the order of `k`, as `Iterator::sum` would.
+    for r in 0..n {
+        let (done, rest) = b.split_at_mut(r * 24);
+        let row = &mut rest[..24];
+        if null[r] {
+            row.fill(0.0);
+            continue;
+        }
+        let mut acc = [-0.0; 24];
+        for (k, above) in done.chunks_exact(24).enumerate() {
+            let l = a[r * n + k];
+            for (s, y) in acc.iter_mut().zip(above) {
+                *s += l * y;
             }
-            let s = b[r * 24 + col] - (0..r).map(|k| a[r * n + k] * b[k * 24 + col]).sum::<f64>();
-            b[r * 24 + col] = s / a[r * n + r];
+        }
+        let pivot = a[r * n + r];
+        for (y, s) in row.iter_mut().zip(&acc) {
+            *y = (*y - s) / pivot;
+        }
+    }
+    // Bᵀ A⁺ B = Yᵀ Y, its upper triangle summed row of Y by row of Y.
+    let mut yty = [-0.0; 576];
+    for y in b.chunks_exact(24) {
+        for i in 0..24 {
+            let yi = y[i];
+            for (s, yj) in yty[i * 24 + i..i * 24 + 24].iter_mut().zip(&y[i..]) {
+                *s += yi * yj;
+            }
         }
     }
     let mut out = k.clone();
     for i in 0..24 {
         for j in i..24 {
-            let s: f64 = (0..n).map(|r| b[r * 24 + i] * b[r * 24 + j]).sum();
-            let v = 0.5 * (out.0[i * 24 + j] + out.0[j * 24 + i]) - s;
+            let v = 0.5 * (out.0[i * 24 + j] + out.0[j * 24 + i]) - yty[i * 24 + j];
             out.0[i * 24 + j] = v;
             out.0[j * 24 + i] = v;
         }

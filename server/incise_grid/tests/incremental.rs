@@ -66,6 +66,33 @@ fn check_changes(grid: &BranchedGrid, changes: &incise_grid::GridChanges) -> Res
         if e.nodes.iter().any(|&n| top.node(n).is_none()) {
             return Err(format!("element {id} refers to a dead node: {:?}", e.nodes));
         }
+        check_offsets(grid, id)?;
+    }
+    Ok(())
+}
+
+/// `element_voxel_offsets_into` (a box scan for an element alone in its cell, a walk for the
+/// pieces of a split one) names the element's voxels, each at its coordinates less its cell's
+/// lowest corner.
+fn check_offsets(grid: &BranchedGrid, id: u32) -> Result<(), String> {
+    let d = grid.fine().dims();
+    let per = 1u32 << grid.top_level();
+    let cell = grid.top().cell_coords(grid.top().element(id).expect("live").cell);
+    let mut walked = grid.element_voxels(id);
+    let mut offsets = Vec::new();
+    grid.element_voxel_offsets_into(id, &mut offsets);
+    for &(v, o) in &offsets {
+        let c = [v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])];
+        let want: [u32; 3] = std::array::from_fn(|a| c[a] - cell[a] * per);
+        if o != want {
+            return Err(format!("element {id}: voxel {v} at offset {o:?}, not {want:?}"));
+        }
+    }
+    let mut scanned: Vec<u32> = offsets.iter().map(|&(v, _)| v).collect();
+    walked.sort_unstable();
+    scanned.sort_unstable();
+    if walked != scanned {
+        return Err(format!("element {id}: offsets name {scanned:?}, the element owns {walked:?}"));
     }
     Ok(())
 }

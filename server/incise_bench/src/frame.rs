@@ -14,7 +14,7 @@
 use crate::coexist::scene_path;
 use crate::timing::quantile;
 use anyhow::{Context, bail};
-use incise_fem::Executor;
+use incise_fem::{ElementKind, Executor, Formulation};
 use incise_math::Vec3;
 use incise_sim::config::{Cutting, Model, ShapeSpec, ToolContact, ToolSpec, VolumeSpec};
 use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
@@ -39,6 +39,12 @@ pub struct FrameArgs {
     /// The grid level the hexahedra run on.
     #[arg(long)]
     levels: Option<u32>,
+    /// How the hexahedra's coarse elements get their stiffness, overriding the scene's
+    /// `model.element`: `condensed` (eq. 1–4), `incompatible` (nine bubble modes per element,
+    /// re-made for the elements a cut touches) or `composite` (every element re-made after a
+    /// cut).
+    #[arg(long, value_name = "KIND", value_parser = ["condensed", "incompatible", "composite"])]
+    elements: Option<String>,
     /// Threads of the physics (1: what runs beside the haptic thread on 2 cores).
     #[arg(long, default_value_t = 1)]
     threads: usize,
@@ -79,7 +85,7 @@ struct Stage {
 #[derive(Clone, Debug, Serialize)]
 struct Report {
     scene: String,
-    model: &'static str,
+    model: String,
     physics_threads: usize,
     voxels: Option<usize>,
     elements: usize,
@@ -327,6 +333,14 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
             Model::TensorMass(_) => bail!("--levels: a tensor-mass scene has no grid levels"),
         }
     }
+    if let Some(kind) = &args.elements {
+        match &mut scene.config.model {
+            Model::Hexahedra(hex) => {
+                hex.element = ElementKind::from_name(kind).expect("clap checked the name");
+            }
+            Model::TensorMass(_) => bail!("--elements: a tensor-mass scene has no grid elements"),
+        }
+    }
     if let Some(gpu) = args.gpu {
         scene.config.gpu = match gpu {
             GpuArg::On => incise_sim::config::GpuSetting::On,
@@ -353,7 +367,17 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
         (None, Some(t)) => t.topology.live_count(),
         _ => 0,
     };
-    let model = if sim.grid().is_some() { "corotational hexahedra" } else { "tensor-mass" };
+    let model = match (&scene.config.model, sim.model()) {
+        (Model::Hexahedra(spec), Some(m)) => format!(
+            "{} hexahedra, {} elements",
+            match spec.formulation {
+                Formulation::Linear => "linear",
+                Formulation::Corotational => "corotational",
+            },
+            m.element.name()
+        ),
+        _ => "tensor-mass".to_owned(),
+    };
     eprintln!(
         "frame: {} ({model}, {} voxels, {elements} elements), unit {:.2} mm, {} physics thread(s)",
         args.scene,
@@ -368,7 +392,7 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
     let o = Organ { unit: o.unit, ..organ(&sim)? };
     let script = script(&o);
     let (frames, wall_off) = play(&mut sim, &script, &o, None)?;
-    let mut report = summarise(args, &sim, model, voxels, elements, &frames);
+    let mut report = summarise(args, &sim, &model, voxels, elements, &frames);
     let stroke: Vec<u32> = frames
         .iter()
         .filter(|(p, _)| *p == Phase::Stroke)
@@ -550,7 +574,7 @@ fn batch_cut(
 fn summarise(
     args: &FrameArgs,
     sim: &Simulation,
-    model: &'static str,
+    model: &str,
     voxels: Option<usize>,
     elements: usize,
     frames: &[(Phase, Frame)],
@@ -592,7 +616,7 @@ fn summarise(
         .fold(0.0, f64::max);
     Report {
         scene: args.scene.clone(),
-        model,
+        model: model.to_owned(),
         physics_threads: args.threads.max(1),
         voxels,
         elements,

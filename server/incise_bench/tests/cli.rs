@@ -532,7 +532,10 @@ fn frame_report_json_has_the_contract_keys_and_every_frame_is_finite() {
     // The tensor-mass liver at its own stride: its lightest vertices are what an unstable
     // explicit tool force blows up first.
     let liver = ["--stride", "16,16,8", "--levels", "2"];
-    for (scene, extra) in [("liver", &liver[..]), (tensor_mass, &[][..])] {
+    let incompatible = ["--stride", "16,16,8", "--levels", "2", "--elements", "incompatible"];
+    for (scene, extra) in
+        [("liver", &liver[..]), ("liver", &incompatible[..]), (tensor_mass, &[][..])]
+    {
         let out = bench().args(["frame", "--scene", scene, "--json"]).args(extra).output().unwrap();
         assert!(out.status.success(), "{scene}: {}", String::from_utf8_lossy(&out.stderr));
         let j = last_json(&out);
@@ -553,6 +556,10 @@ fn frame_report_json_has_the_contract_keys_and_every_frame_is_finite() {
         assert_eq!(j["non_finite_frames"], 0, "{scene}: {j}");
         let cut = j["voxels_removed"].as_u64().unwrap() + j["tets_removed"].as_u64().unwrap();
         assert!(cut > 0, "{scene}: the scripted tools cut nothing");
+        let kind = if extra.contains(&"incompatible") { "incompatible" } else { "condensed" };
+        if scene == "liver" {
+            assert_eq!(j["model"], format!("corotational hexahedra, {kind} elements"), "{j}");
+        }
     }
 }
 

@@ -16,9 +16,10 @@
 //!
 //! The integrands are products of one polynomial of degree at most two per local axis, so they
 //! are integrated exactly from the 27 moments `∫ s_x^a s_y^b s_z^c` of each material's owned
-//! voxels (`a, b, c ≤ 2`), which a voxel adds to in closed form: an element costs 27 products per
-//! voxel and a few thousand more for the matrices, and a unit test checks the result against
-//! 2 × 2 × 2 Gauss points in every voxel (also exact for these integrands).
+//! voxels (`a, b, c ≤ 2`), which a voxel adds to in closed form. They are summed as integers
+//! (exact, so in-place and rebuilt grids agree to the bit), three additions per voxel and 27 per
+//! row of voxels, then a few thousand operations make the matrices; a unit test checks the
+//! result against 2 × 2 × 2 Gauss points in every voxel (also exact for these integrands).
 
 use crate::grid::BranchedGrid;
 use crate::hex8::{Mat24, corner};

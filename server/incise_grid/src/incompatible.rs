@@ -405,7 +405,7 @@ mod tests {
                 .collect();
             let mut voxels = Vec::new();
             let mut checked = 0;
-            for (id, e) in grid.top().elements() {
+            for (id, _) in grid.top().elements() {
                 voxels.clear();
                 grid.element_voxel_offsets_into(id, &mut voxels);
                 let moments = material_moments(&grid, &voxels);

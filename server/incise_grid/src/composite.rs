@@ -18,11 +18,16 @@
 //! The parent's stiffness is the Schur complement onto the corners. A point where superimposed
 //! children meet without sharing a node is two points. Masses stay the condensed ones, so both
 //! models carry the same load.
+//!
+//! Whether a point is shared depends on the cells around it, so a cut changes cells it did not
+//! touch, but only next to the ones it did: [`CompositeLevels`] keeps every level's matrices, and
+//! after an edit makes again, at each level, the cells within one cell of a changed voxel.
 
 use crate::grid::BranchedGrid;
 use crate::hex8::{Mat24, corner, shape};
 use crate::topology::coords;
 use std::collections::HashMap;
+use std::sync::Arc;
 
 /// The Galerkin stiffness's share in [`composite_stiffness`], `K = (1 − s) K_composite + s K_H`.
 /// A corner that no material of its element touches gets no composite stiffness; under a load
@@ -160,114 +165,233 @@ fn condense_onto_corners(children: &[Placed<'_>]) -> Mat24 {
 /// Only on a broken grid invariant (a live element with a dead child).
 #[must_use]
 pub fn composite_stiffness(grid: &BranchedGrid) -> Vec<Option<Mat24>> {
-    let top = grid.top();
-    if grid.top_level() == 0 {
-        let mut out = vec![None; top.element_capacity()];
-        for (id, _) in top.elements() {
-            out[id as usize] = grid.matrices(id).map(|m| m.stiffness.clone());
-        }
-        return out;
+    CompositeLevels::new(grid).1
+}
+
+/// Every level's composite stiffness by element id, kept beside a model so that after a cut only
+/// the cells near it are condensed again ([`CompositeLevels::update`]). Cells full of one
+/// material at level 1 share one matrix.
+#[derive(Clone, Debug, Default)]
+pub struct CompositeLevels {
+    /// `levels[i][id]`: element `id` of grid level `i + 1` (of level 0 when the grid has only
+    /// that), before the Galerkin share is mixed in.
+    levels: Vec<Vec<Option<Arc<Mat24>>>>,
+}
+
+impl CompositeLevels {
+    /// The levels of `grid` and [`composite_stiffness`] of it.
+    ///
+    /// # Panics
+    /// Only on a broken grid invariant (a live element with a dead child).
+    #[must_use]
+    pub fn new(grid: &BranchedGrid) -> (Self, Vec<Option<Mat24>>) {
+        let mut cache = Self::default();
+        cache.pass(grid, None);
+        let full = cache.stiffness(grid);
+        (cache, full)
     }
-    let fine = grid.fine();
-    let dims = fine.dims();
-    let tables = grid.tables();
-    // Level 1 depends only on which voxels of the cell are there, of what material, and which
-    // points other elements use; most cells inside an organ are full: computed once per pattern.
-    let mut level1: HashMap<([u16; 8], u32), Mat24> = HashMap::new();
-    let mut below: Vec<Option<Mat24>> = Vec::new();
-    let mut child_level: Option<std::borrow::Cow<'_, crate::topology::Level>> = None;
-    // Per node of the level below: how many of its elements use it.
-    let mut uses: Vec<u32> = Vec::new();
-    for (li, lvl) in grid.levels().iter().enumerate() {
-        let lvl = lvl.with_nodes();
-        let mut here: Vec<Option<Mat24>> = vec![None; lvl.element_capacity()];
-        for (id, e) in lvl.elements() {
-            let k = if li == 0 {
-                let mut pattern = [0u16; 8];
-                for &v in &e.children {
-                    let c = coords(v, dims);
-                    let o = (c[0] & 1) | (c[1] & 1) << 1 | (c[2] & 1) << 2;
-                    pattern[o as usize] = fine.material(v).map_or(0, |m| m + 1);
-                }
-                let cc = lvl.cell_coords(e.cell);
-                let mut private = 0u32;
-                for p in 0..27u32 {
-                    let at = [2 * cc[0] + p % 3, 2 * cc[1] + (p / 3) % 3, 2 * cc[2] + p / 9];
-                    // The (up to) eight voxels around the point, each empty or this element's.
-                    let alone = (0..8).all(|d| {
-                        let b = corner(d);
-                        let q: [u32; 3] = std::array::from_fn(|a| at[a].wrapping_sub(b[a] as u32));
-                        if (0..3).any(|a| q[a] >= dims[a]) {
-                            return true;
+
+    /// Brings the levels up to date with `grid` after an edit that removed voxels or severed
+    /// links at `dirty_voxels` (both ends of a link), `self` being the levels of the grid before
+    /// it. Returns the top-level elements whose stiffness was made again, with it (plus
+    /// [`GALERKIN_SHARE`] of the condensed stiffness), in id order; the others keep theirs.
+    ///
+    /// A cell's composite stiffness depends on its children's stiffnesses and on which of its
+    /// points elements outside it use. A voxel's change reaches its own cell at every level and,
+    /// through the points on the cell's faces, the cells next to it, so at each level the cells
+    /// within one cell of a dirty voxel's cell are made again. The result equals
+    /// [`CompositeLevels::new`] of the edited grid, bit for bit (a proptest checks it).
+    ///
+    /// # Panics
+    /// Only on a broken grid invariant (a live element with a dead child).
+    pub fn update(&mut self, grid: &BranchedGrid, dirty_voxels: &[u32]) -> Vec<(u32, Mat24)> {
+        let dims = grid.fine().dims();
+        let near: Vec<Vec<bool>> = grid
+            .levels()
+            .iter()
+            .map(|lvl| {
+                let cd = lvl.cell_dims();
+                let mut near = vec![false; cd.iter().map(|&d| d as usize).product()];
+                for &v in dirty_voxels {
+                    let c = coords(v, dims).map(|x| x >> lvl.level());
+                    let lo: [u32; 3] = std::array::from_fn(|a| c[a].saturating_sub(1));
+                    let hi: [u32; 3] = std::array::from_fn(|a| (c[a] + 1).min(cd[a] - 1));
+                    for z in lo[2]..=hi[2] {
+                        for y in lo[1]..=hi[1] {
+                            for x in lo[0]..=hi[0] {
+                                near[(x + cd[0] * (y + cd[1] * z)) as usize] = true;
+                            }
                         }
-                        let v = q[0] + dims[0] * (q[1] + dims[1] * q[2]);
-                        fine.material(v).is_none() || e.children.contains(&v)
-                    });
-                    private |= u32::from(alone) << p;
-                }
-                level1
-                    .entry((pattern, private))
-                    .or_insert_with(|| {
-                        let placed: Vec<Placed<'_>> = pattern
-                            .iter()
-                            .enumerate()
-                            .filter(|&(_, &m)| m != 0)
-                            .map(|(o, &m)| {
-                                let b = corner(o);
-                                let lattice = lattice_of([b[0] as u32, b[1] as u32, b[2] as u32]);
-                                Placed {
-                                    stiffness: &tables.voxel(usize::from(m - 1)).stiffness,
-                                    // One element's voxels share every point they meet at.
-                                    keys: lattice.map(u64::from),
-                                    lattice,
-                                    private: lattice.map(|p| private >> p & 1 == 1),
-                                }
-                            })
-                            .collect();
-                        condense_onto_corners(&placed)
-                    })
-                    .clone()
-            } else {
-                let child_level = child_level.as_deref().expect("the level below");
-                let mut mine: HashMap<u32, u32> = HashMap::new();
-                for &c in &e.children {
-                    for n in child_level.element(c).expect("live child").nodes {
-                        *mine.entry(n).or_default() += 1;
                     }
                 }
-                let placed: Vec<Placed<'_>> = e
-                    .children
-                    .iter()
-                    .map(|&c| {
-                        let ch = child_level.element(c).expect("live child");
-                        let cc = child_level.cell_coords(ch.cell);
-                        Placed {
-                            stiffness: below[c as usize].as_ref().expect("child condensed"),
-                            keys: ch.nodes.map(u64::from),
-                            lattice: lattice_of([cc[0] & 1, cc[1] & 1, cc[2] & 1]),
-                            private: ch.nodes.map(|n| mine[&n] == uses[n as usize]),
+                near
+            })
+            .collect();
+        let ids = self.pass(grid, Some(&near));
+        self.top_stiffness(grid, ids)
+    }
+
+    /// Every live top-level element's stiffness (by id), the Galerkin share mixed in: what
+    /// [`composite_stiffness`] gives for the grid these levels are of.
+    #[must_use]
+    pub fn stiffness(&self, grid: &BranchedGrid) -> Vec<Option<Mat24>> {
+        let mut full = vec![None; grid.top().element_capacity()];
+        for (id, k) in self.top_stiffness(grid, Self::top_ids(grid)) {
+            full[id as usize] = Some(k);
+        }
+        full
+    }
+
+    /// Every live top-level element's id.
+    fn top_ids(grid: &BranchedGrid) -> Vec<u32> {
+        grid.top().elements().map(|(id, _)| id).collect()
+    }
+
+    /// The top-level stiffness of elements `ids`, the Galerkin share mixed in.
+    fn top_stiffness(&self, grid: &BranchedGrid, ids: Vec<u32>) -> Vec<(u32, Mat24)> {
+        let top = self.levels.last().expect("at least one level");
+        ids.into_iter()
+            .map(|id| {
+                let mut k = top[id as usize].as_deref().expect("live element").clone();
+                if grid.top_level() > 0 {
+                    let m = grid.matrices(id).expect("live element has matrices");
+                    for (a, g) in k.0.iter_mut().zip(&m.stiffness.0) {
+                        *a = (1.0 - GALERKIN_SHARE) * *a + GALERKIN_SHARE * g;
+                    }
+                }
+                (id, k)
+            })
+            .collect()
+    }
+
+    /// Condenses the elements of every level whose cell `near` marks (all of them without it),
+    /// from the level below's; returns the top-level elements made, in id order.
+    fn pass(&mut self, grid: &BranchedGrid, near: Option<&[Vec<bool>]>) -> Vec<u32> {
+        let levels = grid.levels();
+        self.levels.resize(levels.len(), Vec::new());
+        if grid.top_level() == 0 {
+            let top = grid.top();
+            let here = &mut self.levels[0];
+            here.clear();
+            here.resize(top.element_capacity(), None);
+            for (id, _) in top.elements() {
+                let k = grid.matrices(id).expect("live element has matrices").stiffness.clone();
+                here[id as usize] = Some(Arc::new(k));
+            }
+            return Self::top_ids(grid);
+        }
+        let fine = grid.fine();
+        let dims = fine.dims();
+        let tables = grid.tables();
+        // Level 1 depends only on which voxels of the cell are there, of what material, and
+        // which points other elements use; most cells inside an organ are full: computed once
+        // per pattern.
+        let mut level1: HashMap<([u16; 8], u32), Arc<Mat24>> = HashMap::new();
+        let mut child_level: Option<std::borrow::Cow<'_, crate::topology::Level>> = None;
+        // Per node of the level below: how many of its elements use it.
+        let mut uses: Vec<u32> = Vec::new();
+        let mut made = Vec::new();
+        for (li, lvl) in levels.iter().enumerate() {
+            let lvl = lvl.with_nodes();
+            let (done, rest) = self.levels.split_at_mut(li);
+            let here = &mut rest[0];
+            let below = done.last();
+            here.resize(lvl.element_capacity(), None);
+            for (id, slot) in here.iter_mut().enumerate() {
+                if lvl.element(id as u32).is_none() {
+                    *slot = None;
+                }
+            }
+            made.clear();
+            for (id, e) in lvl.elements() {
+                if near.is_some_and(|near| !near[li][e.cell as usize]) {
+                    continue;
+                }
+                let k = if li == 0 {
+                    let mut pattern = [0u16; 8];
+                    for &v in &e.children {
+                        let c = coords(v, dims);
+                        let o = (c[0] & 1) | (c[1] & 1) << 1 | (c[2] & 1) << 2;
+                        pattern[o as usize] = fine.material(v).map_or(0, |m| m + 1);
+                    }
+                    let cc = lvl.cell_coords(e.cell);
+                    let mut private = 0u32;
+                    for p in 0..27u32 {
+                        let at = [2 * cc[0] + p % 3, 2 * cc[1] + (p / 3) % 3, 2 * cc[2] + p / 9];
+                        // The (up to) eight voxels around the point, each empty or this
+                        // element's.
+                        let alone = (0..8).all(|d| {
+                            let b = corner(d);
+                            let q: [u32; 3] =
+                                std::array::from_fn(|a| at[a].wrapping_sub(b[a] as u32));
+                            if (0..3).any(|a| q[a] >= dims[a]) {
+                                return true;
+                            }
+                            let v = q[0] + dims[0] * (q[1] + dims[1] * q[2]);
+                            fine.material(v).is_none() || e.children.contains(&v)
+                        });
+                        private |= u32::from(alone) << p;
+                    }
+                    level1
+                        .entry((pattern, private))
+                        .or_insert_with(|| {
+                            let placed: Vec<Placed<'_>> = pattern
+                                .iter()
+                                .enumerate()
+                                .filter(|&(_, &m)| m != 0)
+                                .map(|(o, &m)| {
+                                    let b = corner(o);
+                                    let lattice =
+                                        lattice_of([b[0] as u32, b[1] as u32, b[2] as u32]);
+                                    Placed {
+                                        stiffness: &tables.voxel(usize::from(m - 1)).stiffness,
+                                        // One element's voxels share every point they meet at.
+                                        keys: lattice.map(u64::from),
+                                        lattice,
+                                        private: lattice.map(|p| private >> p & 1 == 1),
+                                    }
+                                })
+                                .collect();
+                            Arc::new(condense_onto_corners(&placed))
+                        })
+                        .clone()
+                } else {
+                    let child_level = child_level.as_deref().expect("the level below");
+                    let below = below.expect("the level below");
+                    let mut mine: HashMap<u32, u32> = HashMap::new();
+                    for &c in &e.children {
+                        for n in child_level.element(c).expect("live child").nodes {
+                            *mine.entry(n).or_default() += 1;
                         }
-                    })
-                    .collect();
-                condense_onto_corners(&placed)
-            };
-            here[id as usize] = Some(k);
-        }
-        uses = vec![0; lvl.node_capacity()];
-        for (_, e) in lvl.elements() {
-            for n in e.nodes {
-                uses[n as usize] += 1;
+                    }
+                    let placed: Vec<Placed<'_>> = e
+                        .children
+                        .iter()
+                        .map(|&c| {
+                            let ch = child_level.element(c).expect("live child");
+                            let cc = child_level.cell_coords(ch.cell);
+                            Placed {
+                                stiffness: below[c as usize].as_deref().expect("child condensed"),
+                                keys: ch.nodes.map(u64::from),
+                                lattice: lattice_of([cc[0] & 1, cc[1] & 1, cc[2] & 1]),
+                                private: ch.nodes.map(|n| mine[&n] == uses[n as usize]),
+                            }
+                        })
+                        .collect();
+                    Arc::new(condense_onto_corners(&placed))
+                };
+                here[id as usize] = Some(k);
+                made.push(id);
             }
-        }
-        child_level = Some(lvl);
-        below = here;
-    }
-    for (id, k) in below.iter_mut().enumerate() {
-        if let (Some(k), Some(m)) = (k.as_mut(), grid.matrices(id as u32)) {
-            for (a, g) in k.0.iter_mut().zip(&m.stiffness.0) {
-                *a = (1.0 - GALERKIN_SHARE) * *a + GALERKIN_SHARE * g;
+            uses = vec![0; lvl.node_capacity()];
+            for (_, e) in lvl.elements() {
+                for n in e.nodes {
+                    uses[n as usize] += 1;
+                }
             }
+            child_level = Some(lvl);
         }
+        made.sort_unstable();
+        made
     }
-    below
 }

@@ -82,6 +82,8 @@ pub struct GridChanges {
     pub voxels_removed: usize,
     /// Links actually severed (those not severed before).
     pub links_severed: usize,
+    /// The voxels the edit changed (those removed, both ends of each link severed), sorted.
+    pub dirty_voxels: Vec<u32>,
 }
 
 /// Element and node counts of one level.
@@ -328,6 +330,7 @@ impl BranchedGrid {
             matrices_updated: updated,
             voxels_removed: removed.len(),
             links_severed,
+            dirty_voxels: dirty,
         })
     }
 

@@ -138,3 +138,63 @@ fn an_inner_homogeneous_cell_passes_the_patch_test() {
         assert!(ec < eg * (1.0 - 1e-3), "level {level}: no relaxation ({ec:e} against {eg:e})");
     }
 }
+
+mod common;
+
+use common::{Rng, materials, random_volume};
+use incise_grid::GridEdit;
+use incise_grid::composite::CompositeLevels;
+use proptest::prelude::*;
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(common::cases(48)))]
+
+    /// After random voxel removals and link severings, the levels updated near the edit give
+    /// every element the stiffness a computation from scratch gives, bit for bit: the cells
+    /// left alone did not depend on the edit.
+    #[test]
+    fn a_local_update_equals_a_computation_from_scratch(
+        dims in prop::array::uniform3(2usize..14),
+        density in 0.4f64..1.0,
+        mats in prop::sample::select(vec![1u16, 2]),
+        level in 1u32..=3,
+        seed in any::<u64>(),
+        steps in prop::collection::vec((0usize..10, 0usize..10), 1..4),
+    ) {
+        let v = random_volume(dims, density, mats, seed);
+        let mut grid = BranchedGrid::build(&v, &materials(mats), level).unwrap();
+        let (mut levels, _) = CompositeLevels::new(&grid);
+        let mut rng = Rng(seed ^ 0x2545_f491_4f6c_dd1d | 1);
+        let d = grid.fine().dims();
+        let n = u64::from(d[0] * d[1] * d[2]);
+        for (i, &(removals, severs)) in steps.iter().enumerate() {
+            let mut edit = GridEdit::default();
+            for _ in 0..removals {
+                edit.remove_voxels.push(rng.below(n) as u32);
+            }
+            for _ in 0..severs {
+                let a = rng.below(n) as u32;
+                if a % d[0] + 1 < d[0] {
+                    edit.sever_links.push((a, a + 1));
+                }
+            }
+            let changes = grid.apply(&edit).unwrap();
+            let made = levels.update(&grid, &changes.dirty_voxels);
+            let local = levels.stiffness(&grid);
+            let scratch = composite_stiffness(&grid);
+            prop_assert_eq!(local.len(), scratch.len());
+            for (id, (a, b)) in local.iter().zip(&scratch).enumerate() {
+                let same = match (a, b) {
+                    (Some(a), Some(b)) => a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()),
+                    (None, None) => true,
+                    _ => false,
+                };
+                prop_assert!(same, "step {}: element {} differs from the computation from scratch", i, id);
+            }
+            for (id, k) in &made {
+                let b = scratch[*id as usize].as_ref().unwrap();
+                prop_assert!(k.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()));
+            }
+        }
+    }
+}

@@ -2,6 +2,7 @@
 //! connectivity with each element's condensed stiffness and mass (Jeřábková 2010 §2.2), and the
 //! lumped node masses.
 
+use incise_grid::composite::CompositeLevels;
 use incise_grid::hex8::{Mat8, Mat24};
 use incise_grid::{BranchedGrid, GridChanges};
 use incise_math::Vec3;
@@ -34,7 +35,8 @@ pub enum ElementKind {
     Condensed,
     /// Composite cells after Nesme et al. 2009 ([`incise_grid::composite`]): softer where a cell
     /// holds a thin neck beside bulk. Which of a cell's points are its own depends on its
-    /// neighbours, so a cut recomputes every element's stiffness.
+    /// neighbours, so a cut makes again, at every level, the cells within one cell of the
+    /// voxels it changed ([`incise_grid::composite::CompositeLevels::update`]).
     Composite,
     /// Incompatible modes (Wilson et al. 1973, [`incise_grid::incompatible`]): coarse elements
     /// that bend without shear locking. Each depends only on its own voxels, so a cut recomputes
@@ -78,6 +80,9 @@ pub struct HexModel {
     pub grid_node: Vec<u32>,
     /// How the elements' stiffnesses are made; [`HexModel::update`] keeps to it.
     pub element: ElementKind,
+    /// With composite elements: every grid level's composite stiffness, so that a cut makes
+    /// again only the cells near it (shared between copies until one is cut).
+    composite: Option<Arc<CompositeLevels>>,
 }
 
 impl HexModel {
@@ -122,7 +127,7 @@ impl HexModel {
     /// edit added or changed are read from the grid (matrices only where it condensed them again,
     /// shared among themselves), and only the lumped masses of the nodes around them summed
     /// again. The others keep their data (stiffness included: the same `Arc`) and move to their
-    /// new indices; composite elements all get their stiffness again (see
+    /// new indices; composite elements near the edit get their stiffness again (see
     /// [`ElementKind::Composite`]). Returns how the indices moved.
     ///
     /// # Panics
@@ -303,8 +308,27 @@ impl HexModel {
                 }
             }
             ElementKind::Composite => {
-                self.set_stiffness(&incise_grid::composite::composite_stiffness(grid));
-                new_matrices = (0..self.elements.len() as u32).collect();
+                if let Some(levels) = self.composite.as_mut() {
+                    let levels = Arc::make_mut(levels);
+                    let made = levels.update(grid, &changes.dirty_voxels);
+                    let mut index = vec![u32::MAX; grid.top().element_capacity()];
+                    for (i, e) in self.elements.iter().enumerate() {
+                        index[e.grid_id as usize] = i as u32;
+                    }
+                    let mut shared = SharedMatrices::default();
+                    for (id, k) in made {
+                        let i = index[id as usize];
+                        self.elements[i as usize].stiffness = shared.get(k.symmetrized());
+                        new_matrices.push(i);
+                    }
+                    new_matrices.sort_unstable();
+                    new_matrices.dedup();
+                } else {
+                    let (levels, k) = CompositeLevels::new(grid);
+                    self.set_stiffness(&k);
+                    self.composite = Some(Arc::new(levels));
+                    new_matrices = (0..self.elements.len() as u32).collect();
+                }
             }
         }
         Renumbering {
@@ -348,6 +372,7 @@ impl HexModel {
             element_size: grid.element_size(),
             grid_node,
             element: ElementKind::Condensed,
+            composite: None,
         }
     }
 
@@ -385,7 +410,9 @@ impl HexModel {
     #[must_use]
     pub fn from_grid_composite(grid: &BranchedGrid) -> Self {
         let mut model = Self::from_grid(grid);
-        model.set_stiffness(&incise_grid::composite::composite_stiffness(grid));
+        let (levels, k) = CompositeLevels::new(grid);
+        model.set_stiffness(&k);
+        model.composite = Some(Arc::new(levels));
         model.element = ElementKind::Composite;
         model
     }

@@ -531,6 +531,18 @@ impl BranchedGrid {
         self.levels.iter().find(|lvl| lvl.level() == l)
     }
 
+    /// Keeps every level's nodes current from now on, not only the top level's: what composite
+    /// elements read below the top after each cut ([`crate::composite::CompositeLevels`]), which
+    /// otherwise computes them for the whole level each time. Each update then costs the nodes
+    /// around its dirty cells at every level.
+    pub fn track_all_nodes(&mut self) {
+        for lvl in &mut self.levels {
+            if !lvl.tracks_nodes() {
+                *lvl = lvl.with_nodes().into_owned();
+            }
+        }
+    }
+
     /// All stored levels, bottom-up.
     #[must_use]
     pub fn levels(&self) -> &[Level] {

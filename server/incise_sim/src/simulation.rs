@@ -956,7 +956,11 @@ fn hex_body(
     table: &MaterialTable,
     exec: Executor,
 ) -> Result<(HexBody, FixedNodes), String> {
-    let grid = BranchedGrid::build(volume, table, level).map_err(|e| e.to_string())?;
+    let mut grid = BranchedGrid::build(volume, table, level).map_err(|e| e.to_string())?;
+    if element == ElementKind::Composite {
+        // A cut then makes composite cells again from the levels' nodes near it.
+        grid.track_all_nodes();
+    }
     let model = HexModel::from_grid_of_kind(&grid, element);
     let force_field = HexForceField::new(&model, hex.formulation).with_executor(exec);
     if let Some(message) = missing_label_holds(config, |l| grid.fine_labels().contains(&l))

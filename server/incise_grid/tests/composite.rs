@@ -141,8 +141,7 @@ fn an_inner_homogeneous_cell_passes_the_patch_test() {
 
 mod common;
 
-use common::{Rng, materials, random_volume};
-use incise_grid::GridEdit;
+use common::{Rng, materials, random_edit, random_volume};
 use incise_grid::composite::CompositeLevels;
 use proptest::prelude::*;
 
@@ -172,19 +171,8 @@ proptest! {
         }
         let (mut levels, _) = CompositeLevels::new(&grid);
         let mut rng = Rng(seed ^ 0x2545_f491_4f6c_dd1d | 1);
-        let d = grid.fine().dims();
-        let n = u64::from(d[0] * d[1] * d[2]);
         for (i, &(removals, severs)) in steps.iter().enumerate() {
-            let mut edit = GridEdit::default();
-            for _ in 0..removals {
-                edit.remove_voxels.push(rng.below(n) as u32);
-            }
-            for _ in 0..severs {
-                let a = rng.below(n) as u32;
-                if a % d[0] + 1 < d[0] {
-                    edit.sever_links.push((a, a + 1));
-                }
-            }
+            let edit = random_edit(&grid, &mut rng, removals, severs);
             let changes = grid.apply(&edit).unwrap();
             plain.apply(&edit).unwrap();
             let made = levels.update(&grid, &changes.dirty_voxels);

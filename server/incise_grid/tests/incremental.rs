@@ -5,35 +5,11 @@
 
 mod common;
 
-use common::{Rng, materials, random_volume, reference_level, without_children};
+use common::{Rng, materials, random_edit, random_volume, reference_level, without_children};
 use incise_grid::canonical::{canonical_levels, compare_grids};
 use incise_grid::procedural::from_fn;
 use incise_grid::{BranchedGrid, GridEdit, Material, MaterialTable};
 use proptest::prelude::*;
-
-/// A random edit: some voxels removed, some links severed (most of them between material voxels).
-fn random_edit(grid: &BranchedGrid, rng: &mut Rng, removals: usize, severs: usize) -> GridEdit {
-    let d = grid.fine().dims();
-    let n = u64::from(d[0] * d[1] * d[2]);
-    let mut edit = GridEdit::default();
-    for _ in 0..removals {
-        edit.remove_voxels.push(rng.below(n) as u32);
-    }
-    for _ in 0..severs {
-        let v = rng.below(n) as u32;
-        let (x, y, z) = (v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1]));
-        let axis = rng.below(3);
-        let (ok, u) = match axis {
-            0 => (x + 1 < d[0], v + 1),
-            1 => (y + 1 < d[1], v + d[0]),
-            _ => (z + 1 < d[2], v + d[0] * d[1]),
-        };
-        if ok {
-            edit.sever_links.push(if rng.below(2) == 0 { (v, u) } else { (u, v) });
-        }
-    }
-    edit
-}
 
 fn check_changes(grid: &BranchedGrid, changes: &incise_grid::GridChanges) -> Result<(), String> {
     let top = grid.top();

@@ -4,7 +4,7 @@
 #![allow(dead_code)]
 
 use incise_grid::canonical::{CanonicalElement, CanonicalLevel};
-use incise_grid::{BranchedGrid, LabelVolume, Material, MaterialTable};
+use incise_grid::{BranchedGrid, GridEdit, LabelVolume, Material, MaterialTable};
 use std::collections::BTreeMap;
 
 /// Proptest cases: `n` by default, `INCISE_PROPTEST_CASES` to hunt harder (e.g. 5000 in release).
@@ -229,4 +229,28 @@ pub fn without_children(mut c: CanonicalLevel) -> CanonicalLevel {
         e.children.clear();
     }
     c
+}
+
+/// A random edit: some voxels removed, some links severed (most of them between material voxels).
+pub fn random_edit(grid: &BranchedGrid, rng: &mut Rng, removals: usize, severs: usize) -> GridEdit {
+    let d = grid.fine().dims();
+    let n = u64::from(d[0] * d[1] * d[2]);
+    let mut edit = GridEdit::default();
+    for _ in 0..removals {
+        edit.remove_voxels.push(rng.below(n) as u32);
+    }
+    for _ in 0..severs {
+        let v = rng.below(n) as u32;
+        let (x, y, z) = (v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1]));
+        let axis = rng.below(3);
+        let (ok, u) = match axis {
+            0 => (x + 1 < d[0], v + 1),
+            1 => (y + 1 < d[1], v + d[0]),
+            _ => (z + 1 < d[2], v + d[0] * d[1]),
+        };
+        if ok {
+            edit.sever_links.push(if rng.below(2) == 0 { (v, u) } else { (u, v) });
+        }
+    }
+    edit
 }

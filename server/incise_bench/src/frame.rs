@@ -41,8 +41,8 @@ pub struct FrameArgs {
     levels: Option<u32>,
     /// How the hexahedra's coarse elements get their stiffness, overriding the scene's
     /// `model.element`: `condensed` (eq. 1–4), `incompatible` (nine bubble modes per element,
-    /// re-made for the elements a cut touches) or `composite` (every element re-made after a
-    /// cut).
+    /// re-made for the elements a cut touches) or `composite` (re-made, at every grid level,
+    /// for the cells next to what a cut changed).
     #[arg(long, value_name = "KIND", value_parser = ["condensed", "incompatible", "composite"])]
     elements: Option<String>,
     /// Threads of the physics (1: what runs beside the haptic thread on 2 cores).

@@ -206,14 +206,15 @@ impl CompositeLevels {
     /// Only on a broken grid invariant (a live element with a dead child).
     pub fn update(&mut self, grid: &BranchedGrid, dirty_voxels: &[u32]) -> Vec<(u32, Mat24)> {
         let dims = grid.fine().dims();
+        let dirty: Vec<[u32; 3]> = dirty_voxels.iter().map(|&v| coords(v, dims)).collect();
         let near: Vec<Vec<bool>> = grid
             .levels()
             .iter()
             .map(|lvl| {
                 let cd = lvl.cell_dims();
                 let mut near = vec![false; cd.iter().map(|&d| d as usize).product()];
-                for &v in dirty_voxels {
-                    let c = coords(v, dims).map(|x| x >> lvl.level());
+                for v in &dirty {
+                    let c = v.map(|x| x >> lvl.level());
                     let lo: [u32; 3] = std::array::from_fn(|a| c[a].saturating_sub(1));
                     let hi: [u32; 3] = std::array::from_fn(|a| (c[a] + 1).min(cd[a] - 1));
                     for z in lo[2]..=hi[2] {

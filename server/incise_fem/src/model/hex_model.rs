@@ -311,15 +311,15 @@ impl HexModel {
                 if let Some(levels) = self.composite.as_mut() {
                     let levels = Arc::make_mut(levels);
                     let made = levels.update(grid, &changes.dirty_voxels);
-                    let mut index = vec![u32::MAX; grid.top().element_capacity()];
-                    for (i, e) in self.elements.iter().enumerate() {
-                        index[e.grid_id as usize] = i as u32;
-                    }
                     let mut shared = SharedMatrices::default();
                     for (id, k) in made {
-                        let i = index[id as usize];
-                        self.elements[i as usize].stiffness = shared.get(k.symmetrized());
-                        new_matrices.push(i);
+                        // The elements are in grid-id order.
+                        let i = self
+                            .elements
+                            .binary_search_by_key(&id, |e| e.grid_id)
+                            .expect("a live top element is in the model");
+                        self.elements[i].stiffness = shared.get(k.symmetrized());
+                        new_matrices.push(i as u32);
                     }
                     new_matrices.sort_unstable();
                     new_matrices.dedup();

@@ -176,6 +176,31 @@ pub struct CompositeLevels {
     /// `levels[i][id]`: element `id` of grid level `i + 1` (of level 0 when the grid has only
     /// that), before the Galerkin share is mixed in.
     levels: Vec<Vec<Option<Arc<Mat24>>>>,
+    /// `inputs[i][id]`: what element `id` of level `i + 1` was condensed from (levels 2 and up),
+    /// so that an update near a cut condenses again only the cells whose inputs changed.
+    inputs: Vec<Vec<Option<Box<[ChildInput]>>>>,
+    /// Level-1 stiffness by (materials of the cell's 8 voxels, private points): most cells are
+    /// full or hold one of a few patterns, and a cut meets the same patterns again.
+    level1: HashMap<([u16; 8], u32), Arc<Mat24>>,
+}
+
+/// Past this many level-1 patterns the cache starts again (each holds a 4.6 KB matrix).
+const LEVEL1_PATTERNS: usize = 4096;
+
+/// One child as a parent's condensation sees it, besides its stiffness: which element it is,
+/// where it sits, its corners' nodes (equal nodes are one point) and which corners are private
+/// (bit `c`). Equal inputs and unchanged children's stiffnesses give the same parent, bit for bit.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct ChildInput {
+    child: u32,
+    octant: u8,
+    nodes: [u32; 8],
+    private: u8,
+}
+
+/// True when `a` and `b` hold the same bits (a `-0.0` against a `0.0` differs).
+fn same_bits(a: &Mat24, b: &Mat24) -> bool {
+    a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
 impl CompositeLevels {
@@ -199,8 +224,13 @@ impl CompositeLevels {
     /// A cell's composite stiffness depends on its children's stiffnesses and on which of its
     /// points elements outside it use. A voxel's change reaches its own cell at every level and,
     /// through the points on the cell's faces, the cells next to it, so at each level the cells
-    /// within one cell of a dirty voxel's cell are made again. The result equals
-    /// [`CompositeLevels::new`] of the edited grid, bit for bit (a proptest checks it).
+    /// within one cell of a dirty voxel's cell are looked at again. Of those, a cell is condensed
+    /// again only when what it is condensed from changed (a child's stiffness, its children, their
+    /// nodes, which of its points are private), and it counts as changed for the level above only
+    /// when its stiffness did. Only elements whose stiffness changed are returned: the caller
+    /// takes [`CompositeLevels::top`] for others it needs (those the grid condensed again). The
+    /// result equals [`CompositeLevels::new`] of the edited grid, bit for bit (a proptest checks
+    /// it).
     ///
     /// # Panics
     /// Only on a broken grid invariant (a live element with a dead child).
@@ -243,6 +273,16 @@ impl CompositeLevels {
         full
     }
 
+    /// The stiffness of top-level elements `ids` (live ones), the Galerkin share mixed in: the
+    /// matrices [`CompositeLevels::stiffness`] gives them.
+    ///
+    /// # Panics
+    /// If an element of `ids` is not live.
+    #[must_use]
+    pub fn top(&self, grid: &BranchedGrid, ids: &[u32]) -> Vec<(u32, Mat24)> {
+        self.top_stiffness(grid, ids.to_vec())
+    }
+
     /// Every live top-level element's id.
     fn top_ids(grid: &BranchedGrid) -> Vec<u32> {
         grid.top().elements().map(|(id, _)| id).collect()
@@ -265,11 +305,13 @@ impl CompositeLevels {
             .collect()
     }
 
-    /// Condenses the elements of every level whose cell `near` marks (all of them without it),
-    /// from the level below's; returns the top-level elements made, in id order.
+    /// Condenses the elements of every level whose cell `near` marks and whose inputs changed
+    /// (all of them without `near`), from the level below's; returns the top-level elements whose
+    /// stiffness changed (every one without `near`), in id order.
     fn pass(&mut self, grid: &BranchedGrid, near: Option<&[Vec<bool>]>) -> Vec<u32> {
         let levels = grid.levels();
         self.levels.resize(levels.len(), Vec::new());
+        self.inputs.resize(levels.len(), Vec::new());
         if grid.top_level() == 0 {
             let top = grid.top();
             let here = &mut self.levels[0];
@@ -284,25 +326,31 @@ impl CompositeLevels {
         let fine = grid.fine();
         let dims = fine.dims();
         let tables = grid.tables();
-        // Level 1 depends only on which voxels of the cell are there, of what material, and
-        // which points other elements use; most cells inside an organ are full: computed once
-        // per pattern.
-        let mut level1: HashMap<([u16; 8], u32), Arc<Mat24>> = HashMap::new();
+        if self.level1.len() > LEVEL1_PATTERNS {
+            self.level1.clear();
+        }
+        let level1 = &mut self.level1;
         let mut child_level: Option<std::borrow::Cow<'_, crate::topology::Level>> = None;
         // Per node of the level below: how many of its elements use it.
         let mut uses: Vec<u32> = Vec::new();
+        // Elements of the level below (then of this one) whose stiffness changed in this pass.
+        let mut changed_below: Vec<bool> = Vec::new();
         let mut made = Vec::new();
         for (li, lvl) in levels.iter().enumerate() {
             let lvl = lvl.with_nodes();
             let (done, rest) = self.levels.split_at_mut(li);
             let here = &mut rest[0];
             let below = done.last();
+            let inputs = &mut self.inputs[li];
             here.resize(lvl.element_capacity(), None);
-            for (id, slot) in here.iter_mut().enumerate() {
+            inputs.resize(lvl.element_capacity(), None);
+            for (id, (slot, input)) in here.iter_mut().zip(inputs.iter_mut()).enumerate() {
                 if lvl.element(id as u32).is_none() {
                     *slot = None;
+                    *input = None;
                 }
             }
+            let mut changed = vec![false; lvl.element_capacity()];
             made.clear();
             for (id, e) in lvl.elements() {
                 if near.is_some_and(|near| !near[li][e.cell as usize]) {
@@ -365,25 +413,58 @@ impl CompositeLevels {
                             *mine.entry(n).or_default() += 1;
                         }
                     }
-                    let placed: Vec<Placed<'_>> = e
+                    let input: Box<[ChildInput]> = e
                         .children
                         .iter()
                         .map(|&c| {
                             let ch = child_level.element(c).expect("live child");
                             let cc = child_level.cell_coords(ch.cell);
-                            Placed {
-                                stiffness: below[c as usize].as_deref().expect("child condensed"),
-                                keys: ch.nodes.map(u64::from),
-                                lattice: lattice_of([cc[0] & 1, cc[1] & 1, cc[2] & 1]),
-                                private: ch.nodes.map(|n| mine[&n] == uses[n as usize]),
+                            let private = (0..8)
+                                .filter(|&k| mine[&ch.nodes[k]] == uses[ch.nodes[k] as usize])
+                                .fold(0u8, |bits, k| bits | 1 << k);
+                            ChildInput {
+                                child: c,
+                                octant: ((cc[0] & 1) | (cc[1] & 1) << 1 | (cc[2] & 1) << 2) as u8,
+                                nodes: ch.nodes,
+                                private,
                             }
                         })
                         .collect();
-                    Arc::new(condense_onto_corners(&placed))
+                    let same_input = near.is_some()
+                        && here[id as usize].is_some()
+                        && inputs[id as usize].as_deref() == Some(&*input)
+                        && !e.children.iter().any(|&c| changed_below[c as usize]);
+                    if same_input {
+                        continue;
+                    }
+                    let placed: Vec<Placed<'_>> = input
+                        .iter()
+                        .map(|ci| {
+                            let o = u32::from(ci.octant);
+                            Placed {
+                                stiffness: below[ci.child as usize]
+                                    .as_deref()
+                                    .expect("child condensed"),
+                                keys: ci.nodes.map(u64::from),
+                                lattice: lattice_of([o & 1, (o >> 1) & 1, o >> 2]),
+                                private: std::array::from_fn(|k| ci.private >> k & 1 == 1),
+                            }
+                        })
+                        .collect();
+                    let k = Arc::new(condense_onto_corners(&placed));
+                    inputs[id as usize] = Some(input);
+                    k
                 };
+                if near.is_some()
+                    && here[id as usize].as_deref().is_some_and(|old| same_bits(old, &k))
+                {
+                    continue;
+                }
                 here[id as usize] = Some(k);
+                changed[id as usize] = true;
                 made.push(id);
             }
+            changed_below = changed;
             uses = vec![0; lvl.node_capacity()];
             for (_, e) in lvl.elements() {
                 for n in e.nodes {

@@ -259,7 +259,7 @@ impl CompositeLevels {
             })
             .collect();
         let ids = self.pass(grid, Some(&near));
-        self.top_stiffness(grid, ids)
+        self.top(grid, &ids)
     }
 
     /// Every live top-level element's stiffness (by id), the Galerkin share mixed in: what
@@ -267,10 +267,15 @@ impl CompositeLevels {
     #[must_use]
     pub fn stiffness(&self, grid: &BranchedGrid) -> Vec<Option<Mat24>> {
         let mut full = vec![None; grid.top().element_capacity()];
-        for (id, k) in self.top_stiffness(grid, Self::top_ids(grid)) {
+        for (id, k) in self.top(grid, &Self::top_ids(grid)) {
             full[id as usize] = Some(k);
         }
         full
+    }
+
+    /// Every live top-level element's id.
+    fn top_ids(grid: &BranchedGrid) -> Vec<u32> {
+        grid.top().elements().map(|(id, _)| id).collect()
     }
 
     /// The stiffness of top-level elements `ids` (live ones), the Galerkin share mixed in: the
@@ -280,19 +285,9 @@ impl CompositeLevels {
     /// If an element of `ids` is not live.
     #[must_use]
     pub fn top(&self, grid: &BranchedGrid, ids: &[u32]) -> Vec<(u32, Mat24)> {
-        self.top_stiffness(grid, ids.to_vec())
-    }
-
-    /// Every live top-level element's id.
-    fn top_ids(grid: &BranchedGrid) -> Vec<u32> {
-        grid.top().elements().map(|(id, _)| id).collect()
-    }
-
-    /// The top-level stiffness of elements `ids`, the Galerkin share mixed in.
-    fn top_stiffness(&self, grid: &BranchedGrid, ids: Vec<u32>) -> Vec<(u32, Mat24)> {
         let top = self.levels.last().expect("at least one level");
-        ids.into_iter()
-            .map(|id| {
+        ids.iter()
+            .map(|&id| {
                 let mut k = top[id as usize].as_deref().expect("live element").clone();
                 if grid.top_level() > 0 {
                     let m = grid.matrices(id).expect("live element has matrices");

@@ -313,12 +313,11 @@ impl HexModel {
                     let mut made = levels.update(grid, &changes.dirty_voxels);
                     // The grid's own condensation enters as the Galerkin share: an element it
                     // condensed again changes even where its composite part did not.
-                    let mut others: Vec<u32> = new_matrices
+                    let others: Vec<u32> = new_matrices
                         .iter()
                         .map(|&i| self.elements[i as usize].grid_id)
                         .filter(|id| made.binary_search_by_key(id, |&(m, _)| m).is_err())
                         .collect();
-                    others.sort_unstable();
                     made.extend(levels.top(grid, &others));
                     let mut shared = SharedMatrices::default();
                     for (id, k) in made {

@@ -572,3 +572,23 @@ fn a_router_and_a_server_started_with_stop_with_parent_end_when_their_parent_is_
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// The README's quick start, `cargo run --release -p incise_server -- --demo`, starts the server:
+/// with more than one binary in the package, cargo runs one only when told which (`--bin`) or
+/// when the package names its `default-run`; otherwise it stops before running anything.
+#[test]
+fn the_readmes_quick_start_runs_the_server() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let read =
+        |p: PathBuf| std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    let readme = read(root.join("README.md"));
+    let manifest = read(root.join("server/incise_server/Cargo.toml"));
+    let run = readme
+        .lines()
+        .find(|l| l.starts_with("cargo run") && l.contains("-p incise_server"))
+        .expect("the README's quick start runs incise_server");
+    let picks_server = run.contains("--bin incise-server")
+        || manifest.matches("[[bin]]").count() <= 1
+        || manifest.lines().any(|l| l.trim() == r#"default-run = "incise-server""#);
+    assert!(picks_server, "`{run}` leaves cargo to choose among incise_server's binaries");
+}

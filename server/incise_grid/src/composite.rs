@@ -24,7 +24,7 @@
 //! after an edit makes again, at each level, the cells within one cell of a changed voxel.
 
 use crate::grid::BranchedGrid;
-use crate::hex8::{Mat24, corner, shape};
+use crate::hex8::{Mat24, corner};
 use crate::topology::coords;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -60,10 +60,48 @@ fn lattice_of(o: [u32; 3]) -> [u8; 8] {
     })
 }
 
-/// The trilinear weights of the parent's corners at lattice point `p`.
-fn weights(p: u8) -> [f64; 8] {
-    let xi = [p % 3, (p / 3) % 3, p / 9].map(|q| f64::from(q) / 2.0);
-    std::array::from_fn(|n| shape(n, xi))
+/// The parent's corners that lattice point `p` follows, with their trilinear weights: one at a
+/// corner, two on an edge, four on a face, eight at the centre. Every weight is a power of two,
+/// so scaling by one (or a product of two) rounds nothing.
+#[derive(Clone, Copy)]
+struct Weights {
+    len: usize,
+    corner: [u8; 8],
+    weight: [f64; 8],
+}
+
+fn weights(p: u8) -> Weights {
+    // Per axis, the parent corners (0 or 1 along it) at lattice coordinate 0, 1, 2.
+    let axis = |q: u8| -> &'static [(u8, f64)] {
+        match q {
+            0 => &[(0, 1.0)],
+            1 => &[(0, 0.5), (1, 0.5)],
+            _ => &[(1, 1.0)],
+        }
+    };
+    let mut w = Weights { len: 0, corner: [0; 8], weight: [0.0; 8] };
+    for &(bz, wz) in axis(p / 9) {
+        for &(by, wy) in axis((p / 3) % 3) {
+            for &(bx, wx) in axis(p % 3) {
+                w.corner[w.len] = bx | by << 1 | bz << 2;
+                w.weight[w.len] = wx * wy * wz;
+                w.len += 1;
+            }
+        }
+    }
+    w
+}
+
+/// `acc` (24 columns, row-major) block `(m, n)` += `s` times the 3 × 3 block `(a, b)` of `k`.
+#[inline]
+fn add_block(acc: &mut [f64], row: usize, col: usize, s: f64, k: &Mat24, a: usize, b: usize) {
+    for i in 0..3 {
+        let src = &k.0[(3 * a + i) * 24 + 3 * b..][..3];
+        let dst = &mut acc[(row + i) * 24 + col..][..3];
+        for (d, x) in dst.iter_mut().zip(src) {
+            *d += s * x;
+        }
+    }
 }
 
 /// The parent's stiffness from its children's: every point the parent shares with another
@@ -72,85 +110,82 @@ fn weights(p: u8) -> [f64; 8] {
 /// is the Schur complement `K = Tᵀ K_bb T − (K_fb T)ᵀ K_ff⁺ (K_fb T)` with `T` the trilinear
 /// weights of the bound points.
 fn condense_onto_corners(children: &[Placed<'_>]) -> Mat24 {
-    // Local points, in order of first appearance: key, lattice position, free.
-    let mut points: Vec<(u64, u8, bool)> = Vec::with_capacity(27);
+    // Local points, in order of first appearance: key, free index (`usize::MAX` when bound).
+    let mut points: Vec<(u64, usize)> = Vec::with_capacity(27);
+    let mut nf = 0;
     let placed: Vec<[usize; 8]> = children
         .iter()
         .map(|ch| {
             std::array::from_fn(|c| {
                 let key = ch.keys[c];
-                if let Some(i) = points.iter().position(|&(k, ..)| k == key) {
+                if let Some(i) = points.iter().position(|&(k, _)| k == key) {
                     return i;
                 }
                 let p = ch.lattice[c];
                 let at_corner = [p % 3, (p / 3) % 3, p / 9].iter().all(|&q| q != 1);
-                points.push((key, p, !at_corner && (p == 13 || ch.private[c])));
+                let free = if !at_corner && (p == 13 || ch.private[c]) {
+                    nf += 1;
+                    nf - 1
+                } else {
+                    usize::MAX
+                };
+                points.push((key, free));
                 points.len() - 1
             })
         })
         .collect();
-    let mut free_index = vec![usize::MAX; points.len()];
-    let mut nf = 0;
-    for (i, &(.., free)) in points.iter().enumerate() {
-        if free {
-            free_index[i] = nf;
-            nf += 1;
-        }
-    }
-    let bound: Vec<[f64; 8]> = points.iter().map(|&(_, p, _)| weights(p)).collect();
     let nfd = 3 * nf;
-    let mut kbb = Mat24::zeros();
+    // Tᵀ K_bb T = A + Aᵀ, A summing each pair of bound corners of a child once (a pair of a
+    // corner with itself at half weight): half the products of the whole sum.
+    let mut half = [0.0; 576];
     let mut kfb = vec![0.0; nfd * 24];
     let mut kff = vec![0.0; nfd * nfd];
     for (ch, map) in children.iter().zip(&placed) {
-        // The child's stiffness times T on its bound corners: (K T) for the 24 parent columns.
-        let mut kt = [[0.0; 24]; 24];
-        for (r, row) in kt.iter_mut().enumerate() {
-            for b in 0..8 {
-                if free_index[map[b]] != usize::MAX {
+        let k = ch.stiffness;
+        let free: [usize; 8] = map.map(|i| points[i].1);
+        let w: [Weights; 8] = std::array::from_fn(|c| weights(ch.lattice[c]));
+        for a in 0..8 {
+            if free[a] != usize::MAX {
+                // A free point's rows: K_fb T and K_ff.
+                let fa = free[a];
+                for b in 0..8 {
+                    if free[b] == usize::MAX {
+                        let wb = &w[b];
+                        for (&n, &s) in wb.corner[..wb.len].iter().zip(&wb.weight) {
+                            add_block(&mut kfb, 3 * fa, 3 * usize::from(n), s, k, a, b);
+                        }
+                    } else {
+                        for i in 0..3 {
+                            let src = &k.0[(3 * a + i) * 24 + 3 * b..][..3];
+                            let dst = &mut kff[(3 * fa + i) * nfd + 3 * free[b]..][..3];
+                            for (d, x) in dst.iter_mut().zip(src) {
+                                *d += x;
+                            }
+                        }
+                    }
+                }
+                continue;
+            }
+            let wa = &w[a];
+            for b in a..8 {
+                if free[b] != usize::MAX {
                     continue;
                 }
-                for (n, &w) in bound[map[b]].iter().enumerate() {
-                    if w == 0.0 {
-                        continue;
-                    }
-                    for j in 0..3 {
-                        row[3 * n + j] += ch.stiffness.0[r * 24 + 3 * b + j] * w;
+                let wb = &w[b];
+                let pair = if a == b { 0.5 } else { 1.0 };
+                for (&m, &v) in wa.corner[..wa.len].iter().zip(&wa.weight) {
+                    for (&n, &s) in wb.corner[..wb.len].iter().zip(&wb.weight) {
+                        let (m, n) = (3 * usize::from(m), 3 * usize::from(n));
+                        add_block(&mut half, m, n, pair * v * s, k, a, b);
                     }
                 }
             }
         }
-        for a in 0..8 {
-            let la = map[a];
-            let fa = free_index[la];
-            for i in 0..3 {
-                let row = &kt[3 * a + i];
-                if fa == usize::MAX {
-                    for (n, &w) in bound[la].iter().enumerate() {
-                        if w == 0.0 {
-                            continue;
-                        }
-                        for col in 0..24 {
-                            kbb.0[(3 * n + i) * 24 + col] += w * row[col];
-                        }
-                    }
-                } else {
-                    let r = 3 * fa + i;
-                    for col in 0..24 {
-                        kfb[r * 24 + col] += row[col];
-                    }
-                    for b in 0..8 {
-                        let fb = free_index[map[b]];
-                        if fb == usize::MAX {
-                            continue;
-                        }
-                        for j in 0..3 {
-                            kff[r * nfd + 3 * fb + j] +=
-                                ch.stiffness.0[(3 * a + i) * 24 + 3 * b + j];
-                        }
-                    }
-                }
-            }
+    }
+    let mut kbb = Mat24([0.0; 576]);
+    for i in 0..24 {
+        for j in 0..24 {
+            kbb.0[i * 24 + j] = half[i * 24 + j] + half[j * 24 + i];
         }
     }
     // A piece hanging from one point turning about it is a zero-energy direction of the free
@@ -359,22 +394,30 @@ impl CompositeLevels {
                         pattern[o as usize] = fine.material(v).map_or(0, |m| m + 1);
                     }
                     let cc = lvl.cell_coords(e.cell);
+                    // Voxels of the 4 × 4 × 4 block around the cell (bit `x + 4y + 16z`, from
+                    // the voxel before the cell's first) that hold material of another element:
+                    // a point is private when none of the eight voxels around it does.
+                    let mut foreign = 0u64;
+                    for z in 0..4u32 {
+                        for y in 0..4u32 {
+                            for x in 0..4u32 {
+                                let q = [x, y, z];
+                                let q: [u32; 3] =
+                                    std::array::from_fn(|a| (2 * cc[a] + q[a]).wrapping_sub(1));
+                                if (0..3).any(|a| q[a] >= dims[a]) {
+                                    continue;
+                                }
+                                let v = q[0] + dims[0] * (q[1] + dims[1] * q[2]);
+                                if fine.material(v).is_some() && !e.children.contains(&v) {
+                                    foreign |= 1 << (x + 4 * y + 16 * z);
+                                }
+                            }
+                        }
+                    }
                     let mut private = 0u32;
                     for p in 0..27u32 {
-                        let at = [2 * cc[0] + p % 3, 2 * cc[1] + (p / 3) % 3, 2 * cc[2] + p / 9];
-                        // The (up to) eight voxels around the point, each empty or this
-                        // element's.
-                        let alone = (0..8).all(|d| {
-                            let b = corner(d);
-                            let q: [u32; 3] =
-                                std::array::from_fn(|a| at[a].wrapping_sub(b[a] as u32));
-                            if (0..3).any(|a| q[a] >= dims[a]) {
-                                return true;
-                            }
-                            let v = q[0] + dims[0] * (q[1] + dims[1] * q[2]);
-                            fine.material(v).is_none() || e.children.contains(&v)
-                        });
-                        private |= u32::from(alone) << p;
+                        let around = 0x0033_0033_u64 << (p % 3 + 4 * ((p / 3) % 3) + 16 * (p / 9));
+                        private |= u32::from(foreign & around == 0) << p;
                     }
                     level1
                         .entry((pattern, private))
@@ -402,12 +445,17 @@ impl CompositeLevels {
                 } else {
                     let child_level = child_level.as_deref().expect("the level below");
                     let below = below.expect("the level below");
-                    let mut mine: HashMap<u32, u32> = HashMap::new();
+                    // Every corner node of every child, sorted: a node is private when this
+                    // element's children are all its users.
+                    let mut mine: Vec<u32> = Vec::with_capacity(8 * e.children.len());
                     for &c in &e.children {
-                        for n in child_level.element(c).expect("live child").nodes {
-                            *mine.entry(n).or_default() += 1;
-                        }
+                        mine.extend(child_level.element(c).expect("live child").nodes);
                     }
+                    mine.sort_unstable();
+                    let count = |n: u32| {
+                        let from = mine.partition_point(|&m| m < n);
+                        mine[from..].iter().take_while(|&&m| m == n).count() as u32
+                    };
                     let input: Box<[ChildInput]> = e
                         .children
                         .iter()
@@ -415,7 +463,7 @@ impl CompositeLevels {
                             let ch = child_level.element(c).expect("live child");
                             let cc = child_level.cell_coords(ch.cell);
                             let private = (0..8)
-                                .filter(|&k| mine[&ch.nodes[k]] == uses[ch.nodes[k] as usize])
+                                .filter(|&k| count(ch.nodes[k]) == uses[ch.nodes[k] as usize])
                                 .fold(0u8, |bits, k| bits | 1 << k);
                             ChildInput {
                                 child: c,

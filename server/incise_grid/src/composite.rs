@@ -217,6 +217,10 @@ pub struct CompositeLevels {
     /// Level-1 stiffness by (materials of the cell's 8 voxels, private points): most cells are
     /// full or hold one of a few patterns, and a cut meets the same patterns again.
     level1: HashMap<([u16; 8], u32), Arc<Mat24>>,
+    /// `uses[i][n]`: how many elements of level `i + 1` use node `n`, as of the last pass. A
+    /// cell whose children and their nodes are as before has the same private points when
+    /// these counts are too, which is cheaper to see than the points themselves.
+    uses: Vec<Vec<u32>>,
 }
 
 /// Past this many level-1 patterns the cache starts again (each holds a 4.6 KB matrix).
@@ -257,12 +261,14 @@ impl CompositeLevels {
     /// [`GALERKIN_SHARE`] of the condensed stiffness), in id order; the others keep theirs.
     ///
     /// A cell's composite stiffness depends on its children's stiffnesses and on which of its
-    /// points elements outside it use. A voxel's change reaches its own cell at every level and,
-    /// through the points on the cell's faces, the cells next to it, so at each level the cells
-    /// within one cell of a dirty voxel's cell are looked at again. Of those, a cell is condensed
-    /// again only when what it is condensed from changed (a child's stiffness, its children, their
-    /// nodes, which of its points are private), and it counts as changed for the level above only
-    /// when its stiffness did. Only elements whose stiffness changed are returned: the caller
+    /// points elements outside it use. A level-1 cell is made from the voxels of its 4 × 4 × 4
+    /// block (its own and the ring around it), so the level-1 cells whose block holds a dirty
+    /// voxel are looked at again. Above, a change reaches a cell's nodes and, through the points
+    /// on its faces, the cells next to it, so the cells within one cell of a dirty voxel's cell
+    /// are. Of those, a cell is condensed again only when what it is condensed from changed (a
+    /// child's stiffness, its children, their nodes, which of its points are private; the last
+    /// is worked out only when the users of its children's nodes changed), and it counts as
+    /// changed for the level above only when its stiffness did. Only elements whose stiffness changed are returned: the caller
     /// takes [`CompositeLevels::top`] for others it needs (those the grid condensed again). The
     /// result equals [`CompositeLevels::new`] of the edited grid, bit for bit (a proptest checks
     /// it).
@@ -279,9 +285,20 @@ impl CompositeLevels {
                 let cd = lvl.cell_dims();
                 let mut near = vec![false; cd.iter().map(|&d| d as usize).product()];
                 for v in &dirty {
-                    let c = v.map(|x| x >> lvl.level());
-                    let lo: [u32; 3] = std::array::from_fn(|a| c[a].saturating_sub(1));
-                    let hi: [u32; 3] = std::array::from_fn(|a| (c[a] + 1).min(cd[a] - 1));
+                    let (lo, hi): ([u32; 3], [u32; 3]) = if lvl.level() == 1 {
+                        // A level-1 cell is made from the voxels of its 4 × 4 × 4 block (its
+                        // own and the ring around it): cells `c` with `2c − 1 ≤ v ≤ 2c + 2`.
+                        (
+                            v.map(|x| x.saturating_sub(2).div_ceil(2)),
+                            std::array::from_fn(|a| (v[a].div_ceil(2)).min(cd[a] - 1)),
+                        )
+                    } else {
+                        let c = v.map(|x| x >> lvl.level());
+                        (
+                            c.map(|x| x.saturating_sub(1)),
+                            std::array::from_fn(|a| (c[a] + 1).min(cd[a] - 1)),
+                        )
+                    };
                     for z in lo[2]..=hi[2] {
                         for y in lo[1]..=hi[1] {
                             for x in lo[0]..=hi[0] {
@@ -342,6 +359,7 @@ impl CompositeLevels {
         let levels = grid.levels();
         self.levels.resize(levels.len(), Vec::new());
         self.inputs.resize(levels.len(), Vec::new());
+        self.uses.resize(levels.len(), Vec::new());
         if grid.top_level() == 0 {
             let top = grid.top();
             let here = &mut self.levels[0];
@@ -363,9 +381,14 @@ impl CompositeLevels {
         let mut child_level: Option<std::borrow::Cow<'_, crate::topology::Level>> = None;
         // Per node of the level below: how many of its elements use it.
         let mut uses: Vec<u32> = Vec::new();
+        // The same counts before this pass.
+        let mut old_uses: Vec<u32> = Vec::new();
         // Elements of the level below (then of this one) whose stiffness changed in this pass.
         let mut changed_below: Vec<bool> = Vec::new();
         let mut made = Vec::new();
+        // Scratch of a cell's inputs: its children's corner nodes, and what it is condensed from.
+        let mut mine: Vec<u32> = Vec::new();
+        let mut input: Vec<ChildInput> = Vec::new();
         for (li, lvl) in levels.iter().enumerate() {
             let lvl = lvl.with_nodes();
             let (done, rest) = self.levels.split_at_mut(li);
@@ -445,9 +468,32 @@ impl CompositeLevels {
                 } else {
                     let child_level = child_level.as_deref().expect("the level below");
                     let below = below.expect("the level below");
+                    // Near a cut most cells keep their children, their nodes and the users
+                    // of those nodes: then their inputs are as stored.
+                    let unchanged = |stored: &[ChildInput]| {
+                        stored.len() == e.children.len()
+                            && stored.iter().zip(&e.children).all(|(ci, &c)| {
+                                let ch = child_level.element(c).expect("live child");
+                                let cc = child_level.cell_coords(ch.cell);
+                                ci.child == c
+                                    && ci.nodes == ch.nodes
+                                    && ci.octant
+                                        == ((cc[0] & 1) | (cc[1] & 1) << 1 | (cc[2] & 1) << 2) as u8
+                                    && ch.nodes.iter().all(|&n| {
+                                        old_uses.get(n as usize) == Some(&uses[n as usize])
+                                    })
+                            })
+                    };
+                    if near.is_some()
+                        && here[id as usize].is_some()
+                        && !e.children.iter().any(|&c| changed_below[c as usize])
+                        && inputs[id as usize].as_deref().is_some_and(unchanged)
+                    {
+                        continue;
+                    }
                     // Every corner node of every child, sorted: a node is private when this
                     // element's children are all its users.
-                    let mut mine: Vec<u32> = Vec::with_capacity(8 * e.children.len());
+                    mine.clear();
                     for &c in &e.children {
                         mine.extend(child_level.element(c).expect("live child").nodes);
                     }
@@ -456,27 +502,24 @@ impl CompositeLevels {
                         let from = mine.partition_point(|&m| m < n);
                         mine[from..].iter().take_while(|&&m| m == n).count() as u32
                     };
-                    let input: Box<[ChildInput]> = e
-                        .children
-                        .iter()
-                        .map(|&c| {
-                            let ch = child_level.element(c).expect("live child");
-                            let cc = child_level.cell_coords(ch.cell);
-                            let private = (0..8)
-                                .filter(|&k| count(ch.nodes[k]) == uses[ch.nodes[k] as usize])
-                                .fold(0u8, |bits, k| bits | 1 << k);
-                            ChildInput {
-                                child: c,
-                                octant: ((cc[0] & 1) | (cc[1] & 1) << 1 | (cc[2] & 1) << 2) as u8,
-                                nodes: ch.nodes,
-                                private,
-                            }
-                        })
-                        .collect();
+                    input.clear();
+                    input.extend(e.children.iter().map(|&c| {
+                        let ch = child_level.element(c).expect("live child");
+                        let cc = child_level.cell_coords(ch.cell);
+                        let private = (0..8)
+                            .filter(|&k| count(ch.nodes[k]) == uses[ch.nodes[k] as usize])
+                            .fold(0u8, |bits, k| bits | 1 << k);
+                        ChildInput {
+                            child: c,
+                            octant: ((cc[0] & 1) | (cc[1] & 1) << 1 | (cc[2] & 1) << 2) as u8,
+                            nodes: ch.nodes,
+                            private,
+                        }
+                    }));
                     let same_input = near.is_some()
                         && here[id as usize].is_some()
-                        && inputs[id as usize].as_deref() == Some(&*input)
-                        && !e.children.iter().any(|&c| changed_below[c as usize]);
+                        && !e.children.iter().any(|&c| changed_below[c as usize])
+                        && inputs[id as usize].as_deref() == Some(&input[..]);
                     if same_input {
                         continue;
                     }
@@ -495,7 +538,7 @@ impl CompositeLevels {
                         })
                         .collect();
                     let k = Arc::new(condense_onto_corners(&placed));
-                    inputs[id as usize] = Some(input);
+                    inputs[id as usize] = Some(input.as_slice().into());
                     k
                 };
                 if near.is_some()
@@ -514,6 +557,7 @@ impl CompositeLevels {
                     uses[n as usize] += 1;
                 }
             }
+            old_uses = std::mem::replace(&mut self.uses[li], uses.clone());
             child_level = Some(lvl);
         }
         made.sort_unstable();

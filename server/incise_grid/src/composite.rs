@@ -25,7 +25,7 @@
 
 use crate::grid::BranchedGrid;
 use crate::hex8::{Mat24, corner};
-use crate::topology::coords;
+use crate::topology::{Level, coords};
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -221,6 +221,13 @@ pub struct CompositeLevels {
     /// cell whose children and their nodes are as before has the same private points when
     /// these counts are too, which is cheaper to see than the points themselves.
     uses: Vec<Vec<u32>>,
+    /// `cells[i][c]`: the elements of level `i + 1` in cell `c`, and `nodes[i][id]` element
+    /// `id`'s nodes, as of the last pass: an update finds the elements gone and brings `uses` up
+    /// to date from the cells near the cut alone.
+    cells: Vec<Vec<Vec<u32>>>,
+    nodes: Vec<Vec<[u32; 8]>>,
+    /// Scratch of the update of `uses`: all false between passes.
+    seen: Vec<bool>,
 }
 
 /// Past this many level-1 patterns the cache starts again (each holds a 4.6 KB matrix).
@@ -240,6 +247,28 @@ struct ChildInput {
 /// True when `a` and `b` hold the same bits (a `-0.0` against a `0.0` differs).
 fn same_bits(a: &Mat24, b: &Mat24) -> bool {
     a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// The cells of every level (index 0: level 1) an update looks at.
+#[derive(Default)]
+struct Near {
+    /// Sorted: the cells whose elements are condensed again if their inputs changed.
+    examine: Vec<Vec<u32>>,
+    /// Sorted: the cells within one cell of one holding a dirty voxel, the only ones where an
+    /// element can have appeared, vanished or changed its nodes.
+    region: Vec<Vec<u32>>,
+}
+
+/// Appends the cells of the box `lo..=hi` (cell coordinates, inclusive) of a level with
+/// `dims` cells per axis.
+fn push_cells(out: &mut Vec<u32>, lo: [u32; 3], hi: [u32; 3], dims: [u32; 3]) {
+    for z in lo[2]..=hi[2] {
+        for y in lo[1]..=hi[1] {
+            for x in lo[0]..=hi[0] {
+                out.push(x + dims[0] * (y + dims[1] * z));
+            }
+        }
+    }
 }
 
 impl CompositeLevels {
@@ -278,38 +307,40 @@ impl CompositeLevels {
     pub fn update(&mut self, grid: &BranchedGrid, dirty_voxels: &[u32]) -> Vec<(u32, Mat24)> {
         let dims = grid.fine().dims();
         let dirty: Vec<[u32; 3]> = dirty_voxels.iter().map(|&v| coords(v, dims)).collect();
-        let near: Vec<Vec<bool>> = grid
-            .levels()
-            .iter()
-            .map(|lvl| {
-                let cd = lvl.cell_dims();
-                let mut near = vec![false; cd.iter().map(|&d| d as usize).product()];
-                for v in &dirty {
-                    let (lo, hi): ([u32; 3], [u32; 3]) = if lvl.level() == 1 {
-                        // A level-1 cell is made from the voxels of its 4 × 4 × 4 block (its
-                        // own and the ring around it): cells `c` with `2c − 1 ≤ v ≤ 2c + 2`.
-                        (
-                            v.map(|x| x.saturating_sub(2).div_ceil(2)),
-                            std::array::from_fn(|a| (v[a].div_ceil(2)).min(cd[a] - 1)),
-                        )
-                    } else {
-                        let c = v.map(|x| x >> lvl.level());
-                        (
-                            c.map(|x| x.saturating_sub(1)),
-                            std::array::from_fn(|a| (c[a] + 1).min(cd[a] - 1)),
-                        )
-                    };
-                    for z in lo[2]..=hi[2] {
-                        for y in lo[1]..=hi[1] {
-                            for x in lo[0]..=hi[0] {
-                                near[(x + cd[0] * (y + cd[1] * z)) as usize] = true;
-                            }
-                        }
-                    }
+        let mut near = Near::default();
+        for lvl in grid.levels() {
+            let cd = lvl.cell_dims();
+            let mut examine = Vec::new();
+            let mut region = Vec::new();
+            let mut dirty_cells: Vec<[u32; 3]> =
+                dirty.iter().map(|v| v.map(|x| x >> lvl.level())).collect();
+            dirty_cells.sort_unstable();
+            dirty_cells.dedup();
+            for c in dirty_cells {
+                let lo = c.map(|x| x.saturating_sub(1));
+                let hi = std::array::from_fn(|a| (c[a] + 1).min(cd[a] - 1));
+                push_cells(&mut region, lo, hi, cd);
+            }
+            for v in &dirty {
+                if lvl.level() == 1 {
+                    // A level-1 cell is made from the voxels of its 4 × 4 × 4 block (its own
+                    // and the ring around it): cells `c` with `2c − 1 ≤ v ≤ 2c + 2`.
+                    let lo = v.map(|x| x.saturating_sub(2).div_ceil(2));
+                    let hi = std::array::from_fn(|a| v[a].div_ceil(2).min(cd[a] - 1));
+                    push_cells(&mut examine, lo, hi, cd);
                 }
-                near
-            })
-            .collect();
+            }
+            region.sort_unstable();
+            region.dedup();
+            if lvl.level() == 1 {
+                examine.sort_unstable();
+                examine.dedup();
+            } else {
+                examine.clone_from(&region);
+            }
+            near.examine.push(examine);
+            near.region.push(region);
+        }
         let ids = self.pass(grid, Some(&near));
         self.top(grid, &ids)
     }
@@ -352,14 +383,85 @@ impl CompositeLevels {
             .collect()
     }
 
-    /// Condenses the elements of every level whose cell `near` marks and whose inputs changed
+    /// Brings `uses`, `cells` and `nodes` of one level (as [`CompositeLevels`] keeps them) up
+    /// to date with `lvl`: from the cells of `region` alone when given, every element
+    /// otherwise. Returns the nodes whose number of users changed, sorted (`None` without
+    /// `region`).
+    fn count_users(
+        uses: &mut Vec<u32>,
+        cells: &mut Vec<Vec<u32>>,
+        nodes: &mut Vec<[u32; 8]>,
+        seen: &mut Vec<bool>,
+        lvl: &Level,
+        region: Option<&[u32]>,
+    ) -> Option<Vec<u32>> {
+        // Never shorter: the last pass's elements may hold nodes past today's capacity.
+        uses.resize(uses.len().max(lvl.node_capacity()), 0);
+        nodes.resize(nodes.len().max(lvl.element_capacity()), [0; 8]);
+        let Some(region) = region else {
+            uses.fill(0);
+            cells.clear();
+            cells.resize(lvl.cell_dims().iter().product::<u32>() as usize, Vec::new());
+            for (id, e) in lvl.elements() {
+                for n in e.nodes {
+                    uses[n as usize] += 1;
+                }
+                nodes[id as usize] = e.nodes;
+                cells[e.cell as usize].push(id);
+            }
+            return None;
+        };
+        // The elements of the region as the last pass left them leave, those there now come
+        // in; `before` keeps each node's count before its first change (`seen` marks those).
+        let mut before: Vec<(u32, u32)> = Vec::new();
+        seen.resize(seen.len().max(uses.len()), false);
+        let mut note = |n: u32, count: u32| {
+            if !std::mem::replace(&mut seen[n as usize], true) {
+                before.push((n, count));
+            }
+        };
+        for &cell in region {
+            for &id in &cells[cell as usize] {
+                for n in nodes[id as usize] {
+                    note(n, uses[n as usize]);
+                    uses[n as usize] -= 1;
+                }
+            }
+        }
+        for &cell in region {
+            let now = lvl.cell_elements(cell);
+            for &id in now {
+                let e = lvl.element(id).expect("a cell's elements are live");
+                for n in e.nodes {
+                    note(n, uses[n as usize]);
+                    uses[n as usize] += 1;
+                }
+                nodes[id as usize] = e.nodes;
+            }
+            cells[cell as usize].clear();
+            cells[cell as usize].extend_from_slice(now);
+        }
+        let mut moved = Vec::new();
+        for (n, was) in before {
+            seen[n as usize] = false;
+            if uses[n as usize] != was {
+                moved.push(n);
+            }
+        }
+        moved.sort_unstable();
+        Some(moved)
+    }
+
+    /// Condenses the elements of every level in the cells `near` examines whose inputs changed
     /// (all of them without `near`), from the level below's; returns the top-level elements whose
     /// stiffness changed (every one without `near`), in id order.
-    fn pass(&mut self, grid: &BranchedGrid, near: Option<&[Vec<bool>]>) -> Vec<u32> {
+    fn pass(&mut self, grid: &BranchedGrid, near: Option<&Near>) -> Vec<u32> {
         let levels = grid.levels();
         self.levels.resize(levels.len(), Vec::new());
         self.inputs.resize(levels.len(), Vec::new());
         self.uses.resize(levels.len(), Vec::new());
+        self.cells.resize(levels.len(), Vec::new());
+        self.nodes.resize(levels.len(), Vec::new());
         if grid.top_level() == 0 {
             let top = grid.top();
             let here = &mut self.levels[0];
@@ -379,10 +481,9 @@ impl CompositeLevels {
         }
         let level1 = &mut self.level1;
         let mut child_level: Option<std::borrow::Cow<'_, crate::topology::Level>> = None;
-        // Per node of the level below: how many of its elements use it.
-        let mut uses: Vec<u32> = Vec::new();
-        // The same counts before this pass.
-        let mut old_uses: Vec<u32> = Vec::new();
+        // Nodes of the level below whose number of users changed in this pass, sorted; `None`
+        // when any may have (a pass from scratch, or a level whose nodes are numbered afresh).
+        let mut users_changed: Option<Vec<u32>> = None;
         // Elements of the level below (then of this one) whose stiffness changed in this pass.
         let mut changed_below: Vec<bool> = Vec::new();
         let mut made = Vec::new();
@@ -397,18 +498,38 @@ impl CompositeLevels {
             let inputs = &mut self.inputs[li];
             here.resize(lvl.element_capacity(), None);
             inputs.resize(lvl.element_capacity(), None);
-            for (id, (slot, input)) in here.iter_mut().zip(inputs.iter_mut()).enumerate() {
-                if lvl.element(id as u32).is_none() {
-                    *slot = None;
-                    *input = None;
+            // Forget the elements gone since the last pass: an id used again must not meet
+            // what its former element was condensed from.
+            let gone = |id: u32| lvl.element(id).is_none();
+            match near {
+                None => {
+                    for id in (0..here.len() as u32).filter(|&id| gone(id)) {
+                        (here[id as usize], inputs[id as usize]) = (None, None);
+                    }
+                }
+                Some(near) => {
+                    for &cell in &near.region[li] {
+                        for &id in self.cells[li].get(cell as usize).into_iter().flatten() {
+                            if gone(id) {
+                                (here[id as usize], inputs[id as usize]) = (None, None);
+                            }
+                        }
+                    }
                 }
             }
+            // The level below's node users (restored below).
+            let uses = if li > 0 { std::mem::take(&mut self.uses[li - 1]) } else { Vec::new() };
             let mut changed = vec![false; lvl.element_capacity()];
             made.clear();
-            for (id, e) in lvl.elements() {
-                if near.is_some_and(|near| !near[li][e.cell as usize]) {
-                    continue;
-                }
+            let ids: Vec<u32> = match near {
+                None => lvl.elements().map(|(id, _)| id).collect(),
+                Some(near) => near.examine[li]
+                    .iter()
+                    .flat_map(|&cell| lvl.cell_elements(cell).iter().copied())
+                    .collect(),
+            };
+            for id in ids {
+                let e = lvl.element(id).expect("a cell's elements are live");
                 let k = if li == 0 {
                     let mut pattern = [0u16; 8];
                     for &v in &e.children {
@@ -479,8 +600,8 @@ impl CompositeLevels {
                                     && ci.nodes == ch.nodes
                                     && ci.octant
                                         == ((cc[0] & 1) | (cc[1] & 1) << 1 | (cc[2] & 1) << 2) as u8
-                                    && ch.nodes.iter().all(|&n| {
-                                        old_uses.get(n as usize) == Some(&uses[n as usize])
+                                    && users_changed.as_ref().is_some_and(|moved| {
+                                        ch.nodes.iter().all(|n| moved.binary_search(n).is_err())
                                     })
                             })
                     };
@@ -551,13 +672,18 @@ impl CompositeLevels {
                 made.push(id);
             }
             changed_below = changed;
-            uses = vec![0; lvl.node_capacity()];
-            for (_, e) in lvl.elements() {
-                for n in e.nodes {
-                    uses[n as usize] += 1;
-                }
+            if li > 0 {
+                self.uses[li - 1] = uses;
             }
-            old_uses = std::mem::replace(&mut self.uses[li], uses.clone());
+            users_changed = Self::count_users(
+                &mut self.uses[li],
+                &mut self.cells[li],
+                &mut self.nodes[li],
+                &mut self.seen,
+                &lvl,
+                // A level whose nodes are numbered afresh for each pass is counted afresh.
+                near.filter(|_| levels[li].tracks_nodes()).map(|near| &near.region[li][..]),
+            );
             child_level = Some(lvl);
         }
         made.sort_unstable();

@@ -21,7 +21,8 @@
 //!
 //! Whether a point is shared depends on the cells around it, so a cut changes cells it did not
 //! touch, but only next to the ones it did: [`CompositeLevels`] keeps every level's matrices, and
-//! after an edit makes again, at each level, the cells within one cell of a changed voxel.
+//! after an edit looks again, at level 1, at the cells whose 4 × 4 × 4 voxel block holds a changed
+//! voxel and, above, at the cells within one cell of a changed voxel's cell.
 
 use crate::grid::BranchedGrid;
 use crate::hex8::{Mat24, corner};
@@ -62,7 +63,7 @@ fn lattice_of(o: [u32; 3]) -> [u8; 8] {
 
 /// The parent's corners that lattice point `p` follows, with their trilinear weights: one at a
 /// corner, two on an edge, four on a face, eight at the centre. Every weight is a power of two,
-/// so scaling by one (or a product of two) rounds nothing.
+/// and so is any product of them: scaling by one rounds nothing.
 #[derive(Clone, Copy)]
 struct Weights {
     len: usize,
@@ -135,8 +136,9 @@ fn condense_onto_corners(children: &[Placed<'_>]) -> Mat24 {
         })
         .collect();
     let nfd = 3 * nf;
-    // Tᵀ K_bb T = A + Aᵀ, A summing each pair of bound corners of a child once (a pair of a
-    // corner with itself at half weight): half the products of the whole sum.
+    // Tᵀ K_bb T = A + Aᵀ, A summing each pair (a, b ≥ a) of a child's bound corners once, the
+    // pair of a corner with itself at half weight: the block (b, a) of a child's stiffness is
+    // the transpose of (a, b) (every stiffness here is symmetric), so half the products do.
     let mut half = [0.0; 576];
     let mut kfb = vec![0.0; nfd * 24];
     let mut kff = vec![0.0; nfd * nfd];
@@ -228,6 +230,9 @@ pub struct CompositeLevels {
     nodes: Vec<Vec<[u32; 8]>>,
     /// Scratch of the update of `uses`: all false between passes.
     seen: Vec<bool>,
+    /// Per level, whether the grid kept its nodes current at the last pass: a level that starts
+    /// to between two passes has its nodes numbered afresh, so it is counted afresh.
+    tracked: Vec<bool>,
 }
 
 /// Past this many level-1 patterns the cache starts again (each holds a 4.6 KB matrix).
@@ -297,13 +302,14 @@ impl CompositeLevels {
     /// are. Of those, a cell is condensed again only when what it is condensed from changed (a
     /// child's stiffness, its children, their nodes, which of its points are private; the last
     /// is worked out only when the users of its children's nodes changed), and it counts as
-    /// changed for the level above only when its stiffness did. Only elements whose stiffness changed are returned: the caller
-    /// takes [`CompositeLevels::top`] for others it needs (those the grid condensed again). The
-    /// result equals [`CompositeLevels::new`] of the edited grid, bit for bit (a proptest checks
-    /// it).
+    /// changed for the level above only when its stiffness did. Only elements whose stiffness
+    /// changed are returned: the caller takes [`CompositeLevels::top`] for others it needs (those
+    /// the grid condensed again). The result equals [`CompositeLevels::new`] of the edited grid,
+    /// bit for bit (a proptest checks it).
     ///
     /// # Panics
-    /// Only on a broken grid invariant (a live element with a dead child).
+    /// On a broken grid invariant (a live element with a dead child), or when `self` does not
+    /// come from [`CompositeLevels::new`] of this grid's lineage (a default value, say).
     pub fn update(&mut self, grid: &BranchedGrid, dirty_voxels: &[u32]) -> Vec<(u32, Mat24)> {
         let dims = grid.fine().dims();
         let dirty: Vec<[u32; 3]> = dirty_voxels.iter().map(|&v| coords(v, dims)).collect();
@@ -395,7 +401,7 @@ impl CompositeLevels {
         lvl: &Level,
         region: Option<&[u32]>,
     ) -> Option<Vec<u32>> {
-        // Never shorter: the last pass's elements may hold nodes past today's capacity.
+        // Never shorter (a level's capacities do not shrink, and a full count zeroes it anyway).
         uses.resize(uses.len().max(lvl.node_capacity()), 0);
         nodes.resize(nodes.len().max(lvl.element_capacity()), [0; 8]);
         let Some(region) = region else {
@@ -462,6 +468,7 @@ impl CompositeLevels {
         self.uses.resize(levels.len(), Vec::new());
         self.cells.resize(levels.len(), Vec::new());
         self.nodes.resize(levels.len(), Vec::new());
+        self.tracked.resize(levels.len(), false);
         if grid.top_level() == 0 {
             let top = grid.top();
             let here = &mut self.levels[0];
@@ -498,8 +505,9 @@ impl CompositeLevels {
             let inputs = &mut self.inputs[li];
             here.resize(lvl.element_capacity(), None);
             inputs.resize(lvl.element_capacity(), None);
-            // Forget the elements gone since the last pass: an id used again must not meet
-            // what its former element was condensed from.
+            // Forget the elements gone since the last pass, so that an id used again in a later
+            // pass does not meet what its former element was condensed from. (An id gone and
+            // used again within this edit keeps its slot: its inputs are compared by value.)
             let gone = |id: u32| lvl.element(id).is_none();
             match near {
                 None => {
@@ -681,9 +689,11 @@ impl CompositeLevels {
                 &mut self.nodes[li],
                 &mut self.seen,
                 &lvl,
-                // A level whose nodes are numbered afresh for each pass is counted afresh.
-                near.filter(|_| levels[li].tracks_nodes()).map(|near| &near.region[li][..]),
+                // A level whose nodes are numbered afresh for this pass is counted afresh.
+                near.filter(|_| self.tracked[li] && levels[li].tracks_nodes())
+                    .map(|near| &near.region[li][..]),
             );
+            self.tracked[li] = levels[li].tracks_nodes();
             child_level = Some(lvl);
         }
         made.sort_unstable();

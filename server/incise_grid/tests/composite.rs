@@ -145,12 +145,61 @@ use common::{Rng, materials, random_edit, random_volume};
 use incise_grid::composite::CompositeLevels;
 use proptest::prelude::*;
 
+/// Edits `steps` (removals, severings) at random into a random block and checks after each that
+/// the levels updated near the edit give every element the stiffness a computation from scratch
+/// gives, bit for bit: the cells left alone did not depend on the edit. With `track`, every
+/// level's nodes are kept current, as a simulation of composite elements keeps them: the node
+/// numbering then differs from the one computed from scratch, which must not matter.
+fn check_local_update(
+    volume: &LabelVolume,
+    mats: u16,
+    level: u32,
+    seed: u64,
+    track: bool,
+    steps: &[(usize, usize)],
+) -> Result<(), TestCaseError> {
+    let mut plain = BranchedGrid::build(volume, &materials(mats), level).unwrap();
+    let mut grid = plain.clone();
+    if track {
+        grid.track_all_nodes();
+    }
+    let (mut levels, _) = CompositeLevels::new(&grid);
+    let mut rng = Rng(seed ^ 0x2545_f491_4f6c_dd1d | 1);
+    for (i, &(removals, severs)) in steps.iter().enumerate() {
+        let edit = random_edit(&grid, &mut rng, removals, severs);
+        let changes = grid.apply(&edit).unwrap();
+        plain.apply(&edit).unwrap();
+        let made = levels.update(&grid, &changes.dirty_voxels);
+        let local = levels.stiffness(&grid);
+        let scratch = composite_stiffness(&plain);
+        prop_assert_eq!(local.len(), scratch.len());
+        for (id, (a, b)) in local.iter().zip(&scratch).enumerate() {
+            let same = match (a, b) {
+                (Some(a), Some(b)) => a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()),
+                (None, None) => true,
+                _ => false,
+            };
+            prop_assert!(
+                same,
+                "step {}: element {} differs from the computation from scratch",
+                i,
+                id
+            );
+        }
+        for (id, k) in &made {
+            let b = scratch[*id as usize].as_ref().unwrap();
+            prop_assert!(k.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()));
+        }
+    }
+    Ok(())
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(common::cases(48)))]
 
     /// After random voxel removals and link severings, the levels updated near the edit give
-    /// every element the stiffness a computation from scratch gives, bit for bit: the cells
-    /// left alone did not depend on the edit.
+    /// every element the stiffness a computation from scratch gives, bit for bit. Half the cases
+    /// keep every level's nodes current.
     #[test]
     fn a_local_update_equals_a_computation_from_scratch(
         dims in prop::array::uniform3(2usize..14),
@@ -161,36 +210,54 @@ proptest! {
         steps in prop::collection::vec((0usize..10, 0usize..10), 1..4),
     ) {
         let v = random_volume(dims, density, mats, seed);
-        let mut plain = BranchedGrid::build(&v, &materials(mats), level).unwrap();
-        // Half the cases keep every level's nodes current, as a simulation of composite
-        // elements does: their node numbering then differs from the one computed from scratch
-        // on `plain`, which must not matter.
-        let mut grid = plain.clone();
-        if seed % 2 == 0 {
+        check_local_update(&v, mats, level, seed, seed % 2 == 0, &steps)?;
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(common::cases(12)))]
+
+    /// The same on blocks where a few edits leave most cells of levels 2 and 3 far from them (6
+    /// to 10 cells per axis at level 2), every level's nodes kept current: the counts and lists
+    /// an update brings up to date from the cells near the edit alone.
+    #[test]
+    fn a_local_update_on_a_large_block_equals_a_computation_from_scratch(
+        dims in prop::array::uniform3(24usize..40),
+        density in 0.35f64..0.8,
+        level in 2u32..=3,
+        seed in any::<u64>(),
+        steps in prop::collection::vec((0usize..6, 0usize..6), 1..4),
+    ) {
+        let v = random_volume(dims, density, 2, seed);
+        check_local_update(&v, 2, level, seed, true, &steps)?;
+    }
+}
+
+/// A grid that starts keeping every level's nodes between two updates numbers them afresh: the
+/// levels count their users afresh then, instead of bringing the last counts up to date.
+#[test]
+fn tracking_nodes_from_the_middle_of_a_run_changes_nothing() {
+    let v = random_volume([30, 26, 22], 0.5, 2, 7);
+    let mut plain = BranchedGrid::build(&v, &materials(2), 2).unwrap();
+    let mut grid = plain.clone();
+    let (mut levels, _) = CompositeLevels::new(&grid);
+    let mut rng = Rng(11);
+    for step in 0..4 {
+        let edit = random_edit(&grid, &mut rng, 4, 4);
+        let changes = grid.apply(&edit).unwrap();
+        plain.apply(&edit).unwrap();
+        if step == 1 {
             grid.track_all_nodes();
         }
-        let (mut levels, _) = CompositeLevels::new(&grid);
-        let mut rng = Rng(seed ^ 0x2545_f491_4f6c_dd1d | 1);
-        for (i, &(removals, severs)) in steps.iter().enumerate() {
-            let edit = random_edit(&grid, &mut rng, removals, severs);
-            let changes = grid.apply(&edit).unwrap();
-            plain.apply(&edit).unwrap();
-            let made = levels.update(&grid, &changes.dirty_voxels);
-            let local = levels.stiffness(&grid);
-            let scratch = composite_stiffness(&plain);
-            prop_assert_eq!(local.len(), scratch.len());
-            for (id, (a, b)) in local.iter().zip(&scratch).enumerate() {
-                let same = match (a, b) {
-                    (Some(a), Some(b)) => a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()),
-                    (None, None) => true,
-                    _ => false,
-                };
-                prop_assert!(same, "step {}: element {} differs from the computation from scratch", i, id);
-            }
-            for (id, k) in &made {
-                let b = scratch[*id as usize].as_ref().unwrap();
-                prop_assert!(k.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()));
-            }
+        levels.update(&grid, &changes.dirty_voxels);
+        let scratch = composite_stiffness(&plain);
+        for (id, (a, b)) in levels.stiffness(&grid).iter().zip(&scratch).enumerate() {
+            let same = match (a, b) {
+                (Some(a), Some(b)) => a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()),
+                (None, None) => true,
+                _ => false,
+            };
+            assert!(same, "step {step}: element {id} differs from the computation from scratch");
         }
     }
 }

@@ -121,7 +121,7 @@ struct Report {
     /// of composite elements does, `BranchedGrid::track_all_nodes`).
     cut500_update_all_nodes_ms: f64,
     /// Composite stiffness after the stroke, updated locally (`CompositeLevels::update`: at
-    /// every level the cells within one cell of a removed voxel whose inputs changed), added to
+    /// every level the cells near a removed voxel whose inputs changed), added to
     /// `cut500_update_all_nodes_ms` when the grid runs composite elements.
     cut500_composite_ms: f64,
     /// Top-level composite elements whose stiffness the local update changed.

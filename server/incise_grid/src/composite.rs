@@ -53,6 +53,12 @@ struct Placed<'a> {
     private: [bool; 8],
 }
 
+/// Which octant of its parent cell (bit `a` set: the upper half along axis `a`) the cell or
+/// voxel at coordinates `c` of the level below is.
+fn octant(c: [u32; 3]) -> u8 {
+    ((c[0] & 1) | (c[1] & 1) << 1 | (c[2] & 1) << 2) as u8
+}
+
 /// The lattice positions of a child's corners when the child sits in octant `o` of its parent.
 fn lattice_of(o: [u32; 3]) -> [u8; 8] {
     std::array::from_fn(|c| {
@@ -327,18 +333,16 @@ impl CompositeLevels {
                 let hi = std::array::from_fn(|a| (c[a] + 1).min(cd[a] - 1));
                 push_cells(&mut region, lo, hi, cd);
             }
-            for v in &dirty {
-                if lvl.level() == 1 {
-                    // A level-1 cell is made from the voxels of its 4 × 4 × 4 block (its own
-                    // and the ring around it): cells `c` with `2c − 1 ≤ v ≤ 2c + 2`.
+            region.sort_unstable();
+            region.dedup();
+            if lvl.level() == 1 {
+                // A level-1 cell is made from the voxels of its 4 × 4 × 4 block (its own and the
+                // ring around it): cells `c` with `2c − 1 ≤ v ≤ 2c + 2`.
+                for v in &dirty {
                     let lo = v.map(|x| x.saturating_sub(2).div_ceil(2));
                     let hi = std::array::from_fn(|a| v[a].div_ceil(2).min(cd[a] - 1));
                     push_cells(&mut examine, lo, hi, cd);
                 }
-            }
-            region.sort_unstable();
-            region.dedup();
-            if lvl.level() == 1 {
                 examine.sort_unstable();
                 examine.dedup();
             } else {
@@ -542,8 +546,7 @@ impl CompositeLevels {
                     let mut pattern = [0u16; 8];
                     for &v in &e.children {
                         let c = coords(v, dims);
-                        let o = (c[0] & 1) | (c[1] & 1) << 1 | (c[2] & 1) << 2;
-                        pattern[o as usize] = fine.material(v).map_or(0, |m| m + 1);
+                        pattern[usize::from(octant(c))] = fine.material(v).map_or(0, |m| m + 1);
                     }
                     let cc = lvl.cell_coords(e.cell);
                     // Voxels of the 4 × 4 × 4 block around the cell (bit `x + 4y + 16z`, from
@@ -603,21 +606,20 @@ impl CompositeLevels {
                         stored.len() == e.children.len()
                             && stored.iter().zip(&e.children).all(|(ci, &c)| {
                                 let ch = child_level.element(c).expect("live child");
-                                let cc = child_level.cell_coords(ch.cell);
                                 ci.child == c
                                     && ci.nodes == ch.nodes
-                                    && ci.octant
-                                        == ((cc[0] & 1) | (cc[1] & 1) << 1 | (cc[2] & 1) << 2) as u8
+                                    && ci.octant == octant(child_level.cell_coords(ch.cell))
                                     && users_changed.as_ref().is_some_and(|moved| {
                                         ch.nodes.iter().all(|n| moved.binary_search(n).is_err())
                                     })
                             })
                     };
-                    if near.is_some()
+                    // A stored matrix can stand when no child's stiffness changed and the inputs
+                    // are as stored.
+                    let may_keep = near.is_some()
                         && here[id as usize].is_some()
-                        && !e.children.iter().any(|&c| changed_below[c as usize])
-                        && inputs[id as usize].as_deref().is_some_and(unchanged)
-                    {
+                        && !e.children.iter().any(|&c| changed_below[c as usize]);
+                    if may_keep && inputs[id as usize].as_deref().is_some_and(unchanged) {
                         continue;
                     }
                     // Every corner node of every child, sorted: a node is private when this
@@ -634,22 +636,17 @@ impl CompositeLevels {
                     input.clear();
                     input.extend(e.children.iter().map(|&c| {
                         let ch = child_level.element(c).expect("live child");
-                        let cc = child_level.cell_coords(ch.cell);
                         let private = (0..8)
                             .filter(|&k| count(ch.nodes[k]) == uses[ch.nodes[k] as usize])
                             .fold(0u8, |bits, k| bits | 1 << k);
                         ChildInput {
                             child: c,
-                            octant: ((cc[0] & 1) | (cc[1] & 1) << 1 | (cc[2] & 1) << 2) as u8,
+                            octant: octant(child_level.cell_coords(ch.cell)),
                             nodes: ch.nodes,
                             private,
                         }
                     }));
-                    let same_input = near.is_some()
-                        && here[id as usize].is_some()
-                        && !e.children.iter().any(|&c| changed_below[c as usize])
-                        && inputs[id as usize].as_deref() == Some(&input[..]);
-                    if same_input {
+                    if may_keep && inputs[id as usize].as_deref() == Some(&input[..]) {
                         continue;
                     }
                     let placed: Vec<Placed<'_>> = input

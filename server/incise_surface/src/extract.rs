@@ -23,8 +23,7 @@ use crate::contour::{CubeConfig, CubeMesh, FRONT, intact_cube, mesh_cube};
 use incise_grid::topology::FineLevel;
 use incise_math::Vec3;
 use std::cmp::Reverse;
-use std::collections::{BTreeSet, BinaryHeap, HashMap};
-use std::hash::{BuildHasherDefault, Hasher};
+use std::collections::{BTreeSet, BinaryHeap};
 
 /// Which materials form one closed surface.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -113,64 +112,56 @@ pub struct Surface {
     /// Freed triangle slots, smallest first (as `free_vertices`).
     pub(crate) free_triangles: BinaryHeap<Reverse<u32>>,
     pub(crate) live_triangles: usize,
-    /// Vertex id by (voxel, group, face). Hashed, not ordered: re-meshing looks up three keys
-    /// per triangle, and a tree of the liver's 50,000 vertices made that most of a cut's
-    /// re-meshing. Never iterated, so its order cannot leak into ids.
-    pub(crate) vertex_ids: HashMap<(u32, u16, u8), u32, FastHash>,
-    /// Triangle ids of each cube, in the order the cube made them (empty for a cube that held
-    /// some once and has none now).
-    pub(crate) cube_triangles: HashMap<u32, Vec<u32>, FastHash>,
+    /// The last vertex made of each voxel (its owner), [`NO_VERTEX`] for none; the others
+    /// follow through [`VertexLink::next`]. Re-meshing looks up three keys per triangle: a tree of
+    /// the liver's 50,000 vertices made that most of a cut's re-meshing, and a hash table cost
+    /// two cache misses a look-up once a frame's mechanics had run. A voxel owns a handful of
+    /// vertices, mostly made together, so their links share a cache line.
+    pub(crate) voxel_first: Vec<u32>,
+    /// Each vertex slot's key and the next vertex of its voxel.
+    pub(crate) vertex_links: Vec<VertexLink>,
+    /// The first triangle of each cube (padded linear index), [`NO_TRIANGLE`] for none: a dense
+    /// table, not a map, since re-meshing looks up every cube around a cut and a hashed look-up
+    /// of a table that a frame's mechanics has pushed out of cache costs two misses, not one.
+    pub(crate) cube_first: Vec<u32>,
+    /// The next triangle of the same cube after each triangle slot, in the order the cube made
+    /// them ([`NO_TRIANGLE`] after the last).
+    pub(crate) cube_next: Vec<u32>,
 }
 
-/// Face codes a vertex can have (module doc).
-const FACE_CODES: u8 = 18;
+/// The end of a voxel's vertex list.
+pub(crate) const NO_VERTEX: u32 = u32::MAX;
 
-/// The multiply-add hash of `rustc-hash` for the small integer keys of the maps above: the
-/// standard library's `SipHash` spends more on them than the rest of a look-up.
-#[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct KeyHasher(u64);
-
-impl KeyHasher {
-    fn add(&mut self, x: u64) {
-        self.0 = self.0.wrapping_add(x).wrapping_mul(0xf135_7aea_2e62_a9c5);
-    }
+/// A vertex's place in its voxel's list: what tells it from the voxel's other vertices, and the
+/// next one.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct VertexLink {
+    pub(crate) next: u32,
+    pub(crate) group: u16,
+    pub(crate) face: u8,
 }
 
-impl Hasher for KeyHasher {
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.add(u64::from(b));
-        }
-    }
+/// The end of a cube's triangle list.
+pub(crate) const NO_TRIANGLE: u32 = u32::MAX;
 
-    fn write_u8(&mut self, x: u8) {
-        self.add(u64::from(x));
-    }
-
-    fn write_u16(&mut self, x: u16) {
-        self.add(u64::from(x));
-    }
-
-    fn write_u32(&mut self, x: u32) {
-        self.add(u64::from(x));
-    }
-
-    fn write_u64(&mut self, x: u64) {
-        self.add(x);
-    }
-
-    fn write_usize(&mut self, x: usize) {
-        self.add(x as u64);
-    }
-
-    fn finish(&self) -> u64 {
-        // The multiply leaves the entropy in the high bits; the table indexes by the low ones.
-        self.0.rotate_left(26)
-    }
+/// The triangle ids of one cube, in the order it made them ([`Surface::cube_triangles`]).
+#[derive(Clone, Debug)]
+pub struct CubeTriangles<'a> {
+    next: u32,
+    links: &'a [u32],
 }
 
-/// Builds [`KeyHasher`]s.
-pub(crate) type FastHash = BuildHasherDefault<KeyHasher>;
+impl Iterator for CubeTriangles<'_> {
+    type Item = u32;
+
+    fn next(&mut self) -> Option<u32> {
+        let t = self.next;
+        (t != NO_TRIANGLE).then(|| {
+            self.next = self.links[t as usize];
+            t
+        })
+    }
+}
 
 /// Reusable buffers for meshing cubes.
 #[derive(Default)]
@@ -212,8 +203,10 @@ impl Surface {
             triangles: Vec::new(),
             free_triangles: BinaryHeap::new(),
             live_triangles: 0,
-            vertex_ids: HashMap::default(),
-            cube_triangles: HashMap::default(),
+            voxel_first: vec![NO_VERTEX; count],
+            vertex_links: Vec::new(),
+            cube_first: vec![NO_TRIANGLE; cubes as usize],
+            cube_next: Vec::new(),
         };
         let mut scratch = CubeScratch::default();
         let mut added = Vec::new();
@@ -231,8 +224,8 @@ impl Surface {
         s.vertices.reserve(room(s.vertices.len()));
         s.uses.reserve(room(s.uses.len()));
         s.triangles.reserve(room(s.triangles.len()));
-        s.vertex_ids.reserve(room(s.vertex_ids.len()));
-        s.cube_triangles.reserve(room(s.cube_triangles.len()));
+        s.cube_next.reserve(room(s.cube_next.len()));
+        s.vertex_links.reserve(room(s.vertex_links.len()));
         s
     }
 
@@ -292,21 +285,55 @@ impl Surface {
     /// The id of the live vertex named `key`.
     #[must_use]
     pub fn vertex_id(&self, key: VertexKey) -> Option<u32> {
-        self.vertex_ids.get(&(key.voxel, key.group, key.face)).copied()
+        let mut v = *self.voxel_first.get(key.voxel as usize)?;
+        while v != NO_VERTEX {
+            let link = self.vertex_links[v as usize];
+            if link.group == key.group && link.face == key.face {
+                return Some(v);
+            }
+            v = link.next;
+        }
+        None
     }
 
     /// The live vertices owned by `voxel`, in key order.
     pub fn vertices_of_voxel(&self, voxel: u32) -> impl Iterator<Item = u32> + '_ {
-        let groups = self.inside.len() as u16;
-        (0..groups)
-            .flat_map(move |g| (0..FACE_CODES).map(move |f| (voxel, g, f)))
-            .filter_map(|key| self.vertex_ids.get(&key).copied())
+        let mut owned = Vec::new();
+        let mut v = self.voxel_first.get(voxel as usize).copied().unwrap_or(NO_VERTEX);
+        while v != NO_VERTEX {
+            owned.push(v);
+            v = self.vertex_links[v as usize].next;
+        }
+        owned.sort_unstable_by_key(|&v| {
+            let link = self.vertex_links[v as usize];
+            (link.group, link.face)
+        });
+        owned.into_iter()
     }
 
-    /// The triangle ids of cube `cube` (padded linear index, module doc).
+    /// Takes vertex `v` out of its voxel's list.
+    pub(crate) fn unlink_vertex(&mut self, v: u32) {
+        let voxel = self.vertices[v as usize].voxel as usize;
+        let next = self.vertex_links[v as usize].next;
+        let mut at = self.voxel_first[voxel];
+        if at == v {
+            self.voxel_first[voxel] = next;
+            return;
+        }
+        while self.vertex_links[at as usize].next != v {
+            at = self.vertex_links[at as usize].next;
+        }
+        self.vertex_links[at as usize].next = next;
+    }
+
+    /// The triangle ids of cube `cube` (padded linear index, module doc), in the order it made
+    /// them.
+    ///
+    /// # Panics
+    /// If `cube` is beyond the padded cube grid.
     #[must_use]
-    pub fn cube_triangles(&self, cube: u32) -> &[u32] {
-        self.cube_triangles.get(&cube).map_or(&[], Vec::as_slice)
+    pub fn cube_triangles(&self, cube: u32) -> CubeTriangles<'_> {
+        CubeTriangles { next: self.cube_first[cube as usize], links: &self.cube_next }
     }
 
     /// Padded linear index of cube `(i, j, k)`, `i` in `-1..dims[0]` (module doc).
@@ -514,18 +541,29 @@ impl Surface {
         let tri = Triangle { v, cube, group, alive: true };
         let id = if let Some(Reverse(id)) = self.free_triangles.pop() {
             self.triangles[id as usize] = tri;
+            self.cube_next[id as usize] = NO_TRIANGLE;
             id
         } else {
             self.triangles.push(tri);
+            self.cube_next.push(NO_TRIANGLE);
             (self.triangles.len() - 1) as u32
         };
         self.live_triangles += 1;
-        self.cube_triangles.entry(cube).or_default().push(id);
+        // Appended after the cube's last: a cube holds a handful, all just written.
+        let mut last = self.cube_first[cube as usize];
+        if last == NO_TRIANGLE {
+            self.cube_first[cube as usize] = id;
+        } else {
+            while self.cube_next[last as usize] != NO_TRIANGLE {
+                last = self.cube_next[last as usize];
+            }
+            self.cube_next[last as usize] = id;
+        }
         id
     }
 
     fn vertex_for(&mut self, key: VertexKey, added: &mut Vec<u32>) -> u32 {
-        if let Some(&id) = self.vertex_ids.get(&(key.voxel, key.group, key.face)) {
+        if let Some(id) = self.vertex_id(key) {
             return id;
         }
         let vertex = SurfaceVertex {
@@ -535,17 +573,24 @@ impl Surface {
             rest: self.rest_position(key),
             alive: true,
         };
+        let link = VertexLink {
+            next: self.voxel_first[key.voxel as usize],
+            group: key.group,
+            face: key.face,
+        };
         let id = if let Some(Reverse(id)) = self.free_vertices.pop() {
             self.vertices[id as usize] = vertex;
             self.uses[id as usize] = 0;
+            self.vertex_links[id as usize] = link;
             id
         } else {
             self.vertices.push(vertex);
             self.uses.push(0);
+            self.vertex_links.push(link);
             (self.vertices.len() - 1) as u32
         };
+        self.voxel_first[key.voxel as usize] = id;
         self.live_vertices += 1;
-        self.vertex_ids.insert((key.voxel, key.group, key.face), id);
         added.push(id);
         id
     }

@@ -27,7 +27,9 @@ mod remesh;
 mod smooth;
 mod tet;
 
-pub use extract::{CanonicalTriangle, Surface, SurfaceOptions, SurfaceVertex, Triangle, VertexKey};
+pub use extract::{
+    CanonicalTriangle, CubeTriangles, Surface, SurfaceOptions, SurfaceVertex, Triangle, VertexKey,
+};
 pub use mapping::{Embedding, SurfaceMapping, changed_elements};
 pub use remesh::SurfaceChanges;
 pub use tet::TetSurface;

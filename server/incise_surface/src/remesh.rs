@@ -6,7 +6,7 @@
 //! any more is freed. Ids freed by a call are not handed out again in the same call, so the
 //! removed and added lists of one [`SurfaceChanges`] never share an id.
 
-use crate::extract::{CubeScratch, Surface, VertexKey};
+use crate::extract::{CubeScratch, NO_TRIANGLE, Surface, VertexKey};
 use incise_grid::topology::FineLevel;
 use std::cmp::Reverse;
 
@@ -57,13 +57,14 @@ impl Surface {
         let mut stale: Vec<u32> = Vec::new();
         for &cube in &cubes {
             self.cube_keys(fine, cube, &mut scratch);
-            let old = self.cube_triangles(cube);
-            let same = old.len() == scratch.out.len()
-                && old.iter().zip(&scratch.out).all(|(&t, (group, keys))| {
+            let mut old = self.cube_triangles(cube);
+            let same = scratch.out.iter().all(|(group, keys)| {
+                old.next().is_some_and(|t| {
                     let tri = &self.triangles[t as usize];
                     tri.group == *group
                         && (0..3).all(|i| self.vertices[tri.v[i] as usize].key() == keys[i])
-                });
+                })
+            }) && old.next().is_none();
             if !same {
                 stale.push(cube);
                 fresh.extend(scratch.out.iter().map(|&(g, k)| (cube, g, k)));
@@ -73,10 +74,10 @@ impl Surface {
         let mut changes = SurfaceChanges::default();
         let mut unused: Vec<u32> = Vec::new();
         for cube in stale {
-            // Emptied, not removed: the cube's list keeps its allocation for the triangles it
-            // gets again below (an allocation per re-meshed cube was a tenth of the cost).
-            let Some(list) = self.cube_triangles.get_mut(&cube) else { continue };
-            for t in list.drain(..) {
+            let mut next = std::mem::replace(&mut self.cube_first[cube as usize], NO_TRIANGLE);
+            while next != NO_TRIANGLE {
+                let t = next;
+                next = self.cube_next[t as usize];
                 let tri = &mut self.triangles[t as usize];
                 tri.alive = false;
                 for &v in &tri.v {
@@ -98,9 +99,8 @@ impl Surface {
         unused.dedup();
         for v in unused {
             if self.uses[v as usize] == 0 {
-                let vertex = &mut self.vertices[v as usize];
-                vertex.alive = false;
-                self.vertex_ids.remove(&(vertex.voxel, vertex.group, vertex.face));
+                self.unlink_vertex(v);
+                self.vertices[v as usize].alive = false;
                 self.live_vertices -= 1;
                 changes.vertices_removed.push(v);
             }

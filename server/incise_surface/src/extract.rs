@@ -285,30 +285,27 @@ impl Surface {
     /// The id of the live vertex named `key`.
     #[must_use]
     pub fn vertex_id(&self, key: VertexKey) -> Option<u32> {
-        let mut v = *self.voxel_first.get(key.voxel as usize)?;
-        while v != NO_VERTEX {
+        self.voxel_vertices(key.voxel).find(|&v| {
             let link = self.vertex_links[v as usize];
-            if link.group == key.group && link.face == key.face {
-                return Some(v);
-            }
-            v = link.next;
-        }
-        None
+            link.group == key.group && link.face == key.face
+        })
     }
 
     /// The live vertices owned by `voxel`, in key order.
     pub fn vertices_of_voxel(&self, voxel: u32) -> impl Iterator<Item = u32> + '_ {
-        let mut owned = Vec::new();
-        let mut v = self.voxel_first.get(voxel as usize).copied().unwrap_or(NO_VERTEX);
-        while v != NO_VERTEX {
-            owned.push(v);
-            v = self.vertex_links[v as usize].next;
-        }
+        let mut owned: Vec<u32> = self.voxel_vertices(voxel).collect();
         owned.sort_unstable_by_key(|&v| {
             let link = self.vertex_links[v as usize];
             (link.group, link.face)
         });
         owned.into_iter()
+    }
+
+    /// The live vertices owned by `voxel`, newest first (none for a voxel out of range).
+    fn voxel_vertices(&self, voxel: u32) -> impl Iterator<Item = u32> + '_ {
+        let first = self.voxel_first.get(voxel as usize).copied().unwrap_or(NO_VERTEX);
+        let some = |v: u32| (v != NO_VERTEX).then_some(v);
+        std::iter::successors(some(first), move |&v| some(self.vertex_links[v as usize].next))
     }
 
     /// Takes vertex `v` out of its voxel's list.

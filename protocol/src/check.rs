@@ -45,8 +45,55 @@ impl fmt::Display for PoseError {
 
 impl std::error::Error for PoseError {}
 
+/// A pose [`check_pose`] found usable, its quaternion normalised: what the haptic loop, the
+/// physics and (as an `incise_tool::ToolPose`, which it converts to without another check) the
+/// simulation take, so that a pose is checked once, where it enters.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CheckedPose(RawToolPose);
+
+impl CheckedPose {
+    /// The pose's fields.
+    #[must_use]
+    pub fn raw(&self) -> &RawToolPose {
+        &self.0
+    }
+
+    /// A pose this program checked before and kept where it can only be read back as it was
+    /// written (a shared-memory cell of its own): not checked again.
+    #[must_use]
+    pub fn restored(pose: RawToolPose) -> Self {
+        Self(pose)
+    }
+}
+
+impl std::ops::Deref for CheckedPose {
+    type Target = RawToolPose;
+
+    fn deref(&self) -> &RawToolPose {
+        &self.0
+    }
+}
+
 /// `pose` made usable: its quaternion normalised, or the reason it cannot be used.
-pub fn check_pose(pose: &RawToolPose) -> Result<RawToolPose, PoseError> {
+pub fn check_pose(pose: &RawToolPose) -> Result<CheckedPose, PoseError> {
+    let norm = usable(pose)?;
+    let mut checked = *pose;
+    checked.orientation = pose.orientation.map(|c| c / norm);
+    Ok(CheckedPose(checked))
+}
+
+impl CheckedPose {
+    /// A pose read from outside that this program checked before it was kept there (a
+    /// recording's poses): checked again, but its numbers kept exactly as given, since
+    /// normalising an already normalised quaternion may move its last bits.
+    pub fn verified(pose: &RawToolPose) -> Result<Self, PoseError> {
+        usable(pose)?;
+        Ok(Self(*pose))
+    }
+}
+
+/// Whether `pose` is usable; the norm of its quaternion.
+fn usable(pose: &RawToolPose) -> Result<f64, PoseError> {
     let finite = |v: &[f64], field| {
         if v.iter().all(|c| c.is_finite()) { Ok(()) } else { Err(PoseError::NotFinite { field }) }
     };
@@ -66,9 +113,7 @@ pub fn check_pose(pose: &RawToolPose) -> Result<RawToolPose, PoseError> {
     if pose.gripper_angle < 0.0 {
         return Err(PoseError::NegativeGripper { angle: pose.gripper_angle });
     }
-    let mut checked = *pose;
-    checked.orientation = pose.orientation.map(|c| c / norm);
-    Ok(checked)
+    Ok(norm)
 }
 
 #[cfg(test)]
@@ -81,6 +126,12 @@ mod tests {
         p.orientation = [1.0005, 0.0, 0.0, 0.0];
         let checked = check_pose(&p).unwrap();
         assert!((checked.orientation[0] - 1.0).abs() < 1e-15);
+        // Read back as recorded: checked, kept bit for bit.
+        let bits = |q: [f64; 4]| q.map(f64::to_bits);
+        assert_eq!(bits(CheckedPose::verified(&p).unwrap().orientation), bits(p.orientation));
+        let mut bad = p;
+        bad.position[0] = f64::NAN;
+        assert!(CheckedPose::verified(&bad).is_err());
         p.orientation = [0.9, 0.0, 0.0, 0.0];
         assert!(matches!(check_pose(&p), Err(PoseError::NotUnit { .. })));
         p.orientation = [0.0; 4];

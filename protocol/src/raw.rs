@@ -140,6 +140,8 @@ impl TryFrom<&v1::ToolPose> for RawToolPose {
 }
 
 impl From<&RawToolForce> for v1::ToolForce {
+    /// The shared-memory record does not carry the proxy's pose: `proxy` is absent (a sender
+    /// that has it sets it, [`v1::ToolForce::with_proxy`]).
     fn from(r: &RawToolForce) -> Self {
         Self {
             tool_id: r.tool_id,
@@ -149,7 +151,32 @@ impl From<&RawToolForce> for v1::ToolForce {
             torque: Some(vec3(r.torque)),
             gripper_force: r.gripper_force,
             flags: r.flags,
+            proxy: None,
         }
+    }
+}
+
+impl v1::Pose {
+    /// A pose at `position` (m) turned by the unit quaternion `orientation` (`w, x, y, z`).
+    #[must_use]
+    pub fn of(position: [f64; 3], orientation: [f64; 4]) -> Self {
+        let [w, x, y, z] = orientation;
+        Self { position: Some(vec3(position)), orientation: Some(v1::Quaternion { w, x, y, z }) }
+    }
+
+    /// Its position and orientation, when both are given.
+    #[must_use]
+    pub fn parts(&self) -> Option<([f64; 3], [f64; 4])> {
+        let (p, q) = (self.position.as_ref()?, self.orientation.as_ref()?);
+        Some((array(p), [q.w, q.x, q.y, q.z]))
+    }
+}
+
+impl v1::ToolForce {
+    /// The same force with the proxy's pose (`position`, `orientation`) beside it.
+    #[must_use]
+    pub fn with_proxy(self, proxy: Option<([f64; 3], [f64; 4])>) -> Self {
+        Self { proxy: proxy.map(|(p, q)| v1::Pose::of(p, q)), ..self }
     }
 }
 

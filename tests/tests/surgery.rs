@@ -38,7 +38,7 @@ value = 0.0
 }
 
 fn posed(tool: usize, position: Vec3) -> StepInputs {
-    let pose = ToolPose { pose: Pose::at(position), gripper: 0.0 };
+    let pose = ToolPose::from_pose(Pose::at(position), 0.0).unwrap();
     StepInputs { tools: vec![ToolInput { tool, pose }], ..StepInputs::default() }
 }
 
@@ -67,7 +67,7 @@ fn a_pressed_probe_is_pushed_back_and_dents_the_surface() {
     assert!(tool.force()[2] > 0.0, "the tissue pushes the probe up");
 }
 
-use incise_sim::config::{Cutting, ShapeSpec, ToolContact, ToolSpec};
+use incise_sim::config::{CouplingSpec, Cutting, ShapeSpec, ToolContact, ToolSpec};
 use incise_tool::{Primitive, Shape};
 
 /// The 13,648-voxel liver with `tools`.
@@ -91,9 +91,11 @@ fn cutter(name: &str, outer: Primitive, inner_offset_z: f64) -> ToolSpec {
             .unwrap(),
         )),
         contact: ToolContact::Points,
+        coupling: CouplingSpec::default(),
         stiffness: 300.0,
         damping: Some(0.0),
         cutting: Cutting::Remove,
+        cut_force: 0.5,
         jaws: None,
         path: None,
     }
@@ -130,8 +132,7 @@ fn press(tool: ToolSpec, limit: f64) -> Press {
     let mut result = Press { reached: None, cut: None, peak: 0.0 };
     for step in 0..800 {
         let travel = -0.01 + 5e-5 * f64::from(step);
-        let pose =
-            ToolPose { pose: Pose::new([cx, cy, bottom + travel], up).unwrap(), gripper: 0.0 };
+        let pose = ToolPose::new([cx, cy, bottom + travel], up, 0.0).unwrap();
         let inputs =
             StepInputs { tools: vec![ToolInput { tool: 0, pose }], ..StepInputs::default() };
         let frame = sim.step(&inputs).unwrap();

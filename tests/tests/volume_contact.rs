@@ -333,7 +333,8 @@ outer = { mesh = \"punch.stl\" }
     let mut last = None;
     for i in 0..300 {
         let lowered = depth * (f64::from(i.min(100)) / 100.0);
-        let pose = ToolPose { pose: Pose::at([centre[0], centre[1], top - lowered]), gripper: 0.0 };
+        let pose =
+            ToolPose::from_pose(Pose::at([centre[0], centre[1], top - lowered]), 0.0).unwrap();
         let inputs =
             StepInputs { tools: vec![ToolInput { tool: 0, pose }], ..StepInputs::default() };
         last = Some(step(&mut sim, &inputs));
@@ -426,7 +427,7 @@ inner = {{ shape = \"sphere\", radius = 0.0073 }}
     let (mut removed, mut mismatches) = (Vec::new(), 0);
     for i in 0..50 {
         let position = [0.004 + 0.001 * f64::from(i), 0.0103, 0.0121];
-        let pose = ToolPose { pose: Pose::at(position), gripper: 0.0 };
+        let pose = ToolPose::from_pose(Pose::at(position), 0.0).unwrap();
         let inputs =
             StepInputs { tools: vec![ToolInput { tool: 0, pose }], ..StepInputs::default() };
         let frame = step(&mut sim, &inputs);

@@ -16,9 +16,11 @@ use crate::timing::quantile;
 use anyhow::{Context, bail};
 use incise_fem::{ElementKind, Executor, Formulation};
 use incise_math::Vec3;
-use incise_sim::config::{Cutting, Model, ShapeSpec, ToolContact, ToolSpec, VolumeSpec};
+use incise_sim::config::{
+    CouplingSpec, Cutting, DEFAULT_CUT_FORCE, Model, ShapeSpec, ToolContact, ToolSpec, VolumeSpec,
+};
 use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
-use incise_tool::{Pose, Primitive, Shape, ToolPose};
+use incise_tool::{Primitive, Shape, ToolPose};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -179,9 +181,11 @@ fn scalpel(unit: f64) -> ToolSpec {
             .expect("positive"),
         )),
         contact: ToolContact::Points,
+        coupling: CouplingSpec::default(),
         stiffness: 5.0,
         damping: None,
         cutting: Cutting::Remove,
+        cut_force: DEFAULT_CUT_FORCE,
         jaws: None,
         path: None,
     }
@@ -196,9 +200,11 @@ fn transector(unit: f64, width: f64) -> ToolSpec {
         outer: shape.clone(),
         inner: Some(shape),
         contact: ToolContact::Points,
+        coupling: CouplingSpec::default(),
         stiffness: 300.0,
         damping: None,
         cutting: Cutting::Remove,
+        cut_force: DEFAULT_CUT_FORCE,
         jaws: None,
         path: None,
     }
@@ -495,16 +501,10 @@ fn play(
     for (phase, scalpel, transector) in &script.frames {
         let mut tools = Vec::new();
         if let Some(p) = scalpel {
-            tools.push(ToolInput {
-                tool: 0,
-                pose: ToolPose { pose: Pose::new(*p, DOWN)?, gripper: 0.0 },
-            });
+            tools.push(ToolInput { tool: 0, pose: ToolPose::new(*p, DOWN, 0.0)? });
         }
         if let Some(p) = transector {
-            tools.push(ToolInput {
-                tool: 1,
-                pose: ToolPose { pose: Pose::new(*p, DOWN)?, gripper: 0.0 },
-            });
+            tools.push(ToolInput { tool: 1, pose: ToolPose::new(*p, DOWN, 0.0)? });
         }
         if scalpel.is_none()
             && transector.is_some()
@@ -512,8 +512,7 @@ fn play(
         {
             // Park the scalpel out of the way.
             let away = [o.lo[0] - 10.0 * o.unit, o.lo[1], o.hi[2] + 10.0 * o.unit];
-            tools
-                .push(ToolInput { tool: 0, pose: ToolPose { pose: Pose::at(away), gripper: 0.0 } });
+            tools.push(ToolInput { tool: 0, pose: ToolPose::new(away, DOWN, 0.0)? });
         }
         // The poses as the server would have received them, only when recording: the run
         // without recording must not pay for it.
@@ -521,8 +520,8 @@ fn play(
             tools
                 .iter()
                 .map(|t| incise_protocol::raw::RawToolPose {
-                    orientation: t.pose.pose.rotation(),
-                    ..incise_protocol::raw::RawToolPose::at(t.tool as u32, t.pose.pose.position())
+                    orientation: t.pose.pose().rotation(),
+                    ..incise_protocol::raw::RawToolPose::at(t.tool as u32, t.pose.pose().position())
                 })
                 .collect()
         });

@@ -4,6 +4,7 @@
 mod coexist;
 mod frame;
 mod grid_report;
+mod haptics;
 mod latency;
 mod ldi;
 mod peers;
@@ -66,6 +67,18 @@ enum Command {
     /// `--via-router --scenes N`: N servers of their own scene behind one zenoh router, one
     /// client each, all at once.
     Latency(latency::LatencyArgs),
+    /// How the tools feel through a real server (the demo scene unless `--scene`), over
+    /// iceoryx2 and zenoh: each tool's depth sweep, jab and press-release cycles driven by a
+    /// client in another process at 1 kHz; per tool, the proxy's largest penetration (from the
+    /// recording replayed bit for bit), the largest force step between two ticks, the energy the
+    /// device receives over the cycles, and the haptic tick's cost (p50, p99).
+    Haptics(haptics::HapticsArgs),
+    /// `haptics`' server process (started by `haptics`).
+    #[command(hide = true)]
+    HapticsServer(haptics::ServerRole),
+    /// `haptics`' client process (started by `haptics`).
+    #[command(hide = true)]
+    HapticsClient(haptics::ClientRole),
     /// `latency`'s server process (started by `latency`).
     #[command(hide = true)]
     LatencyServer(latency::ServerRole),
@@ -91,6 +104,9 @@ fn main() -> anyhow::Result<()> {
         Command::Coexist(args) => coexist::run(&args),
         Command::Frame(args) => frame::run(&args),
         Command::Ldi(args) => ldi::run(&args),
+        Command::Haptics(args) => haptics::run(&args),
+        Command::HapticsServer(role) => haptics::serve(&role),
+        Command::HapticsClient(role) => haptics::client(&role),
         Command::Latency(args) => latency::run(&args),
         Command::LatencyServer(role) => latency::serve(&role),
         Command::LatencyClient(role) => latency::client(&role),

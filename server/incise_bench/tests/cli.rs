@@ -627,6 +627,57 @@ fn latency_report_json_has_the_contract_keys() {
     }
 }
 
+/// `incise-bench haptics`, briefly (a shallow sweep, two cycles) over each transport: a real
+/// server and client process drive the demo's two tools, the recording replays bit for bit, and
+/// the last line holds the contract's keys with figures a solid proxy gives: every tool was
+/// pushed back, the grasper's proxy stayed on the surface, and the cycles gave the hand no
+/// energy.
+#[test]
+fn haptics_report_json_has_the_contract_keys() {
+    for transport in ["iceoryx2", "zenoh"] {
+        let out = bench()
+            .args(["haptics", "--transport", transport, "--cycles", "2", "--depth", "2"])
+            .args(["--speed", "20", "--json"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{transport}: {}", String::from_utf8_lossy(&out.stderr));
+        let j = last_json(&out);
+        let run = &j["runs"][0];
+        assert_eq!(run["transport"], transport, "{j}");
+        for key in ["tick_cost_us_p50", "tick_cost_us_p99"] {
+            assert!(run[key].as_f64().is_some_and(|v| v > 0.0), "{transport}: {key} in {j}");
+        }
+        assert!(run["frames"].as_u64().unwrap() > 0, "{j}");
+        assert_eq!(run["replayed_frames"], run["frames"], "{j}");
+        assert!(run["diverged"].is_null(), "the replay diverged: {j}");
+        let tools = run["tools"].as_array().unwrap();
+        assert_eq!(tools.len(), 2, "the demo's scalpel and grasper: {j}");
+        for tool in tools {
+            for key in ["max_force_step_n", "cycles_work_j"] {
+                assert!(tool[key].as_f64().is_some_and(|v| v > 0.0), "{key} in {tool}");
+            }
+            let force = tool["max_force_n"].as_f64().unwrap();
+            assert!(force > 0.0 && force <= 8.0 + 1e-9, "{tool}");
+            // The proxy's outer shape against the deformed surface: within a tenth of a
+            // millimetre for the grasper. The scalpel's proxy rests in its own cut, whose walls
+            // (whole voxels) reach into its outer shape, and the measure counts them.
+            let depth = tool["max_penetration_mm"].as_f64().unwrap();
+            assert!(depth >= 0.0, "{tool}");
+            if tool["name"] == "grasper" {
+                assert!(depth < 0.1, "{tool}");
+            }
+            let (energy, work) = (
+                tool["cycles_energy_j"].as_f64().unwrap(),
+                tool["cycles_work_j"].as_f64().unwrap(),
+            );
+            assert!(energy <= 0.01 * work, "the hand received {energy} J of {work} J: {tool}");
+            for test in ["sweep", "jab", "cycles"] {
+                assert!(tool["max_force_step_n_by_test"][test].is_number(), "{test} in {tool}");
+            }
+        }
+    }
+}
+
 #[test]
 fn multigrid_report_solves_every_system_to_the_cholesky_answer() {
     let out = bench()

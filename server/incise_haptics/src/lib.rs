@@ -29,5 +29,5 @@ pub mod snapshot;
 
 pub use force_log::{ForceLog, SentForce};
 pub use render::{HapticSettings, Renderer};
-pub use run::{HapticLoop, Jitter, LoopIo, LoopShared, ToolCounts, Waker};
+pub use run::{HapticLoop, Histogram, LoopIo, LoopShared, ProxyPose, Rendered, ToolCounts, Waker};
 pub use snapshot::ToolSnapshot;

@@ -3,7 +3,7 @@
 //! it is tested without threads or sleeps.
 
 use crate::snapshot::ToolSnapshot;
-use incise_protocol::check::{PoseError, check_pose};
+use incise_protocol::check::CheckedPose;
 use incise_protocol::raw::{RawToolForce, RawToolPose};
 use incise_protocol::v1::ForceFlag;
 
@@ -20,7 +20,8 @@ pub struct HapticSettings {
     pub max_force_rate_n_per_s: f64,
     /// Without a valid pose for this long, the force starts to fade (ms).
     pub stale_after_ms: f64,
-    /// And reaches zero this much later (ms).
+    /// And reaches zero this much later (ms). Once it has, the stream is over
+    /// ([`Self::silence_ns`]).
     pub fade_ms: f64,
     /// Whether the passivity controller runs.
     pub passivity: bool,
@@ -42,18 +43,15 @@ impl Default for HapticSettings {
     }
 }
 
-/// Why a pose was not used.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Refused {
-    /// It failed [`check_pose`].
-    Invalid(PoseError),
-    /// Its timestamp is earlier than the tool's last pose's.
-    Backwards {
-        /// The last timestamp (ns).
-        last: u64,
-        /// This one's.
-        given: u64,
-    },
+impl HapticSettings {
+    /// How long a tool's poses may stop before its stream is over (ns): the stale wait and the
+    /// fade together. The one window everything that judges a silent driver keeps: by then its
+    /// force has faded out, another session may take the tool, and its timestamps may start
+    /// again from a new clock.
+    #[must_use]
+    pub fn silence_ns(&self) -> u64 {
+        ((self.stale_after_ms + self.fade_ms) * 1e6) as u64
+    }
 }
 
 /// One tool's renderer.
@@ -94,25 +92,10 @@ impl Renderer {
         self.pose.as_ref().map(|p| &p.0)
     }
 
-    /// Offers a pose that arrived at `now_ns`: used if it checks and does not go back in time.
-    /// A pose after the stream went stale starts a new timeline (a restarted driver's clock
-    /// starts again), so only a live stream's timestamps must go forward.
-    pub fn offer(&mut self, now_ns: u64, pose: &RawToolPose) -> Result<(), Refused> {
-        let checked = check_pose(pose).map_err(Refused::Invalid)?;
-        let live = |arrived: u64| {
-            now_ns.saturating_sub(arrived) as f64 * 1e-6 <= self.settings.stale_after_ms
-        };
-        if let Some((last, arrived)) = &self.pose
-            && live(*arrived)
-            && checked.timestamp_ns < last.timestamp_ns
-        {
-            return Err(Refused::Backwards {
-                last: last.timestamp_ns,
-                given: checked.timestamp_ns,
-            });
-        }
-        self.pose = Some((checked, now_ns));
-        Ok(())
+    /// Takes the tool's newest pose, which arrived at `now_ns`: checked and in order, as
+    /// `LoopShared::accept_pose` keeps them.
+    pub fn offer(&mut self, now_ns: u64, pose: &CheckedPose) {
+        self.pose = Some((*pose.raw(), now_ns));
     }
 
     /// The force to send at `now_ns`, from the newest pose and `snapshot` (the last physics
@@ -285,11 +268,14 @@ mod tests {
             torque: [0.0; 3],
             jacobian,
             flags: ForceFlag::InContact as u32,
+            proxy: None,
         }
     }
 
-    fn pose(seq: u64, ts: u64, z: f64) -> RawToolPose {
-        RawToolPose { sequence: seq, timestamp_ns: ts, ..RawToolPose::at(0, [0.0, 0.0, z]) }
+    fn pose(seq: u64, ts: u64, z: f64) -> CheckedPose {
+        let raw =
+            RawToolPose { sequence: seq, timestamp_ns: ts, ..RawToolPose::at(0, [0.0, 0.0, z]) };
+        incise_protocol::check::check_pose(&raw).unwrap()
     }
 
     fn settings() -> HapticSettings {
@@ -303,13 +289,13 @@ mod tests {
     #[test]
     fn the_force_follows_the_linearisation_and_answers_the_pose() {
         let mut r = Renderer::new(0, settings());
-        r.offer(0, &pose(5, 100, -0.001)).unwrap();
+        r.offer(0, &pose(5, 100, -0.001));
         let out = r.force(MS, Some(&floor()));
         assert!((out.force[2] - 3.0).abs() < 1e-12, "{:?}", out.force);
         assert_eq!(out.pose_sequence, 5);
         assert_eq!(out.flags, ForceFlag::InContact as u32);
         // Lifted 3 mm: the linear force would pull (−1 N); a contact does not.
-        r.offer(MS, &pose(6, 200, 0.003)).unwrap();
+        r.offer(MS, &pose(6, 200, 0.003));
         assert_eq!(r.force(2 * MS, Some(&floor())).force, [0.0; 3]);
     }
 
@@ -320,9 +306,9 @@ mod tests {
         snap.torque = [0.1, 0.0, 0.0];
         let mut r = Renderer::new(0, settings());
         let half = 0.01f64 / 2.0; // 10 mrad about x
-        let mut p = pose(1, 1, 0.0);
+        let mut p = *pose(1, 1, 0.0).raw();
         p.orientation = [half.cos(), half.sin(), 0.0, 0.0];
-        r.offer(0, &p).unwrap();
+        r.offer(0, &incise_protocol::check::check_pose(&p).unwrap());
         let out = r.force(MS, Some(&snap));
         assert!((out.torque[0] - (0.1 - 0.5 * 0.01)).abs() < 1e-9, "{:?}", out.torque);
     }
@@ -331,7 +317,7 @@ mod tests {
     fn a_pose_far_from_the_frame_is_evaluated_at_the_trust_distance() {
         let mut r = Renderer::new(0, settings());
         // 3 cm into the floor: the linear model would say 32 N; it is trusted to 5 mm (7 N).
-        r.offer(0, &pose(1, 1, -0.03)).unwrap();
+        r.offer(0, &pose(1, 1, -0.03));
         let out = r.force(MS, Some(&floor()));
         assert!((out.force[2] - 7.0).abs() < 1e-9, "{:?}", out.force);
     }
@@ -340,12 +326,12 @@ mod tests {
     fn the_force_is_clamped_and_its_rate_limited_and_both_are_flagged() {
         let s = HapticSettings { max_force_rate_n_per_s: 1000.0, max_force_n: 5.0, ..settings() };
         let mut r = Renderer::new(0, s);
-        r.offer(0, &pose(1, 1, -0.0045)).unwrap(); // 6.5 N wanted
+        r.offer(0, &pose(1, 1, -0.0045)); // 6.5 N wanted
         let first = r.force(0, Some(&floor()));
         assert!((first.force[2] - s.max_force_n).abs() < 1e-12);
         assert_ne!(first.flags & ForceFlag::Clamped as u32, 0);
         // Released: the force may fall by 1 N per ms, no faster.
-        r.offer(MS, &pose(2, 2, 0.001)).unwrap();
+        r.offer(MS, &pose(2, 2, 0.001));
         let next = r.force(MS, Some(&floor()));
         assert!((next.force[2] - (s.max_force_n - 1.0)).abs() < 1e-9, "{:?}", next.force);
         assert_ne!(next.flags & ForceFlag::Clamped as u32, 0);
@@ -354,7 +340,7 @@ mod tests {
     #[test]
     fn when_poses_stop_the_force_fades_to_zero_within_50_ms_and_is_flagged_stale() {
         let mut r = Renderer::new(0, settings());
-        r.offer(0, &pose(1, 1, -0.002)).unwrap();
+        r.offer(0, &pose(1, 1, -0.002));
         let held = r.force(0, Some(&floor())).force[2];
         assert!((held - 4.0).abs() < 1e-9);
         let mut last = held;
@@ -370,34 +356,8 @@ mod tests {
             last = out.force[2];
         }
         // A new pose brings the force back (through the rate limit, here unlimited).
-        r.offer(61 * MS, &pose(2, 2, -0.002)).unwrap();
+        r.offer(61 * MS, &pose(2, 2, -0.002));
         assert!((r.force(61 * MS, Some(&floor())).force[2] - 4.0).abs() < 1e-9);
-    }
-
-    #[test]
-    fn invalid_and_backward_poses_are_refused_and_count_as_no_pose() {
-        let mut r = Renderer::new(0, settings());
-        r.offer(0, &pose(1, 1000, -0.001)).unwrap();
-        let mut nan = pose(2, 2000, -0.001);
-        nan.position[0] = f64::NAN;
-        assert!(matches!(r.offer(MS, &nan), Err(Refused::Invalid(_))));
-        assert!(matches!(
-            r.offer(MS, &pose(3, 999, -0.001)),
-            Err(Refused::Backwards { last: 1000, given: 999 })
-        ));
-        assert_eq!(r.pose().unwrap().sequence, 1);
-        // After the stream went stale, an earlier timestamp starts a new timeline.
-        r.offer(30 * MS, &pose(4, 5, -0.001)).unwrap();
-        assert_eq!(r.pose().unwrap().sequence, 4);
-        r.offer(100 * MS, &nan).unwrap_err();
-        // Only refused poses for 60 ms: the force has faded.
-        for ms in 1..=60 {
-            let _ = r.offer(ms * MS, &nan);
-            let out = r.force(ms * MS, Some(&floor()));
-            if ms >= 50 {
-                assert_eq!(out.force, [0.0; 3]);
-            }
-        }
     }
 
     /// A contact whose frames come at 100 Hz while the hand oscillates in and out of it: each
@@ -439,7 +399,7 @@ mod tests {
                 snap.position[2] = z;
                 snap.force[2] = 2.0 - 1000.0 * z;
             }
-            r.offer(i * MS, &pose(i + 1, i + 1, z)).unwrap();
+            r.offer(i * MS, &pose(i + 1, i + 1, z));
             let out = r.force(i * MS, Some(&snap));
             if let Some((f, z0)) = previous {
                 taken -= f[2] * (z - z0);

@@ -13,9 +13,9 @@
 //! into a fixed histogram.
 
 use crate::cell::SeqCell;
-use crate::render::{HapticSettings, Refused, Renderer};
+use crate::render::{HapticSettings, Renderer};
 use crate::snapshot::{SnapshotCell, ToolSnapshot};
-use incise_protocol::check::check_pose;
+use incise_protocol::check::{CheckedPose, check_pose};
 use incise_protocol::raw::{RawToolForce, RawToolPose};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -24,11 +24,22 @@ use std::time::{Duration, Instant};
 
 /// Words of a pose record: the `RawToolPose` (18 words) and the arrival time.
 const POSE_WORDS: usize = 19;
-/// Words of a force record.
-const FORCE_WORDS: usize = 10;
+/// Words of a force record: the `RawToolForce` (10 words), whether the proxy is given, its
+/// position and orientation.
+const FORCE_WORDS: usize = 18;
 
-/// A pose source silent this long (ns) may start a new timeline: its timestamps may restart.
-const TIMELINE_RESET_NS: u64 = 50_000_000;
+/// A proxy's pose: position (m) and orientation (unit quaternion `w, x, y, z`).
+pub type ProxyPose = ([f64; 3], [f64; 4]);
+
+/// A force the loop rendered, and the pose of the tool's proxy in the physics frame it came
+/// from (the zenoh transport sends it beside the force; the shared-memory record has no room).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Rendered {
+    /// The force.
+    pub force: RawToolForce,
+    /// The proxy's pose, if the tool has one.
+    pub proxy: Option<ProxyPose>,
+}
 
 /// How many pose sources (transports) may drive one tool.
 pub const SOURCES: usize = 2;
@@ -101,17 +112,23 @@ pub struct LoopShared {
     /// Wakes a loop whose [`LoopIo::wait`] does not park (set once, by the server).
     waker: WakerCell,
     stop: AtomicBool,
+    /// How long a tool's poses may stop before its stream is over ([`HapticSettings::silence_ns`]).
+    silence_ns: u64,
     /// The counters.
     pub counters: Counters,
-    jitter: Jitter,
+    jitter: Histogram,
+    /// What each update of the loop costs (its compute time, from the poses taken to the forces
+    /// written).
+    cost: Histogram,
     /// Every force sent, for a recorder ([`Self::log_forces`]).
     force_log: std::sync::OnceLock<Arc<crate::ForceLog>>,
 }
 
 impl LoopShared {
-    /// Shared state for `tools` tools.
+    /// Shared state for `tools` tools, for a loop with `settings` (whose staleness windows
+    /// the pose hand-off keeps too).
     #[must_use]
-    pub fn new(tools: usize) -> Arc<Self> {
+    pub fn new(tools: usize, settings: &HapticSettings) -> Arc<Self> {
         Arc::new(Self {
             snapshots: (0..tools).map(|_| SnapshotCell::default()).collect(),
             poses: (0..tools).map(|_| Default::default()).collect(),
@@ -124,8 +141,10 @@ impl LoopShared {
             thread: std::sync::OnceLock::new(),
             waker: WakerCell::default(),
             stop: AtomicBool::new(false),
+            silence_ns: settings.silence_ns(),
             counters: Counters::default(),
-            jitter: Jitter::default(),
+            jitter: Histogram::default(),
+            cost: Histogram::default(),
             force_log: std::sync::OnceLock::new(),
         })
     }
@@ -171,10 +190,11 @@ impl LoopShared {
 
     /// Stores a pose for its tool from source `source` (one writer per source) without waking
     /// the loop: what the haptic thread itself calls for the poses its [`LoopIo`] receives. The
-    /// pose is checked here, on the receiving thread, so that every refusal is counted even
-    /// when a newer pose follows before the loop runs: an invalid one ([`check_pose`]) and one
-    /// whose timestamp goes back are counted and dropped. Returns false for a tool id the scene
-    /// lacks or a source out of range.
+    /// pose is checked here, where it enters, and only here: on the receiving thread, so that
+    /// every refusal is counted even when a newer pose follows before the loop runs. An invalid
+    /// one ([`check_pose`]) and one whose timestamp goes back in a live stream are counted and
+    /// dropped; the loop and the physics read the [`CheckedPose`]s stored. Returns false for a
+    /// tool id the scene lacks or a source out of range.
     pub fn accept_pose(&self, source: usize, pose: &RawToolPose) -> bool {
         let tool = pose.tool_id as usize;
         let (Some(cell), Some(stamp)) = (
@@ -194,7 +214,7 @@ impl LoopShared {
         }
         // A live stream's timestamps must go forward; one silent for the whole fade may start
         // again from a new clock (a driver restarted).
-        let live = cell.read().is_some_and(|(w, _)| now.saturating_sub(w[18]) < TIMELINE_RESET_NS);
+        let live = cell.read().is_some_and(|(w, _)| now.saturating_sub(w[18]) < self.silence_ns);
         if live && pose.timestamp_ns < stamp.load(Ordering::Relaxed) {
             self.counters.backwards.fetch_add(1, Ordering::Relaxed);
             return true;
@@ -219,14 +239,14 @@ impl LoopShared {
     }
 
     /// Whether session `id` may drive tool `tool` at `now`: it does already, or nobody does,
-    /// or its driver has been silent for [`TIMELINE_RESET_NS`] (the stale fade's length), in
+    /// or its driver has been silent for the stale fade's length ([`HapticSettings::silence_ns`]), in
     /// which case the tool passes to `id`. Two sources may race for a free tool; the
     /// compare-exchange lets exactly one take it.
     fn claim(&self, tool: usize, id: u64, now: u64) -> bool {
         let (owner, seen) = &self.drivers[tool];
         let current = owner.load(Ordering::Acquire);
         if current != id {
-            let silent = now.saturating_sub(seen.load(Ordering::Acquire)) >= TIMELINE_RESET_NS;
+            let silent = now.saturating_sub(seen.load(Ordering::Acquire)) >= self.silence_ns;
             if current != 0 && !silent {
                 return false;
             }
@@ -257,10 +277,10 @@ impl LoopShared {
         self.waker.0.set(waker).is_ok()
     }
 
-    /// Tool `tool`'s newest pose from any source, unchecked (the physics thread checks it), and
-    /// when it arrived (ns on the loop's clock).
+    /// Tool `tool`'s newest pose from any source, checked where it entered, and when it
+    /// arrived (ns on the loop's clock).
     #[must_use]
-    pub fn newest_pose(&self, tool: usize) -> Option<(RawToolPose, u64)> {
+    pub fn newest_pose(&self, tool: usize) -> Option<(CheckedPose, u64)> {
         self.poses
             .get(tool)?
             .iter()
@@ -270,7 +290,7 @@ impl LoopShared {
 
     /// Tool `tool`'s newest force and how many have been written (for the transports).
     #[must_use]
-    pub fn force(&self, tool: usize) -> Option<(RawToolForce, u64)> {
+    pub fn force(&self, tool: usize) -> Option<(Rendered, u64)> {
         let (w, version) = self.forces.get(tool)?.read()?;
         Some((force_from_words(&w), version))
     }
@@ -281,10 +301,17 @@ impl LoopShared {
         self.wake();
     }
 
-    /// The loop's period jitter so far.
+    /// The loop's period jitter so far: how far each tick's interval strayed from the period.
     #[must_use]
-    pub fn jitter(&self) -> &Jitter {
+    pub fn jitter(&self) -> &Histogram {
         &self.jitter
+    }
+
+    /// What the loop's updates cost so far: each one's compute time, from taking the poses to
+    /// writing the forces.
+    #[must_use]
+    pub fn cost(&self) -> &Histogram {
+        &self.cost
     }
 }
 
@@ -345,7 +372,7 @@ impl HapticLoop {
             let ticked = now >= next;
             if ticked {
                 if let Some(last) = last_tick {
-                    shared.jitter.record(now.duration_since(last), self.period);
+                    shared.jitter.record(now.duration_since(last).abs_diff(self.period));
                 }
                 last_tick = Some(now);
                 // Keep to the schedule; after a long stall, start a new one from now.
@@ -354,7 +381,11 @@ impl HapticLoop {
                     next = now + self.period;
                 }
             }
+            let started = Instant::now();
             let updated = self.update(ticked);
+            if updated != 0 {
+                shared.cost.record(started.elapsed());
+            }
             if updated != 0 {
                 io.forces_ready(&shared, updated);
             }
@@ -381,18 +412,9 @@ impl HapticLoop {
                 let Some((words, version)) = cell.read() else { continue };
                 self.seen[tool][source] = version;
                 let (pose, arrived) = pose_from_words(&words);
-                match self.renderers[tool].offer(arrived, &pose) {
-                    Ok(()) => {
-                        fresh = true;
-                        shared.counters.poses.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(Refused::Invalid(_)) => {
-                        shared.counters.invalid.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(Refused::Backwards { .. }) => {
-                        shared.counters.backwards.fetch_add(1, Ordering::Relaxed);
-                    }
-                }
+                self.renderers[tool].offer(arrived, &pose);
+                fresh = true;
+                shared.counters.poses.fetch_add(1, Ordering::Relaxed);
             }
             if !(tick || fresh) {
                 continue;
@@ -406,7 +428,8 @@ impl HapticLoop {
             if flags & incise_protocol::v1::ForceFlag::Clamped as u32 != 0 {
                 shared.counters.clamped.fetch_add(1, Ordering::Relaxed);
             }
-            shared.forces[tool].write(&force_words(&force));
+            let proxy = snapshot.as_ref().and_then(|s| s.proxy);
+            shared.forces[tool].write(&force_words(&Rendered { force, proxy }));
             if let Some(log) = shared.force_log.get() {
                 let snapshot_frame = snapshot.as_ref().map_or(0, |s| s.frame);
                 log.push(&crate::SentForce { force, snapshot_frame });
@@ -420,17 +443,17 @@ impl HapticLoop {
     }
 }
 
-/// The period's jitter: how far each tick's interval strayed from the period, in a fixed
-/// histogram of 1 µs buckets up to 10 ms (the last bucket holds everything beyond).
+/// Durations in a fixed histogram of 1 µs buckets up to 10 ms (the last bucket holds
+/// everything beyond): the period's jitter, an update's cost.
 #[derive(Debug)]
-pub struct Jitter {
+pub struct Histogram {
     buckets: Box<[AtomicU64]>,
     max_ns: AtomicU64,
 }
 
 const JITTER_BUCKETS: usize = 10_000;
 
-impl Default for Jitter {
+impl Default for Histogram {
     fn default() -> Self {
         Self {
             buckets: (0..JITTER_BUCKETS).map(|_| AtomicU64::new(0)).collect(),
@@ -439,23 +462,22 @@ impl Default for Jitter {
     }
 }
 
-impl Jitter {
-    fn record(&self, interval: Duration, period: Duration) {
-        let off = interval.abs_diff(period);
-        let ns = u64::try_from(off.as_nanos()).unwrap_or(u64::MAX);
+impl Histogram {
+    fn record(&self, d: Duration) {
+        let ns = u64::try_from(d.as_nanos()).unwrap_or(u64::MAX);
         let bucket = ((ns / 1000) as usize).min(JITTER_BUCKETS - 1);
         self.buckets[bucket].fetch_add(1, Ordering::Relaxed);
         self.max_ns.fetch_max(ns, Ordering::Relaxed);
     }
 
-    /// Ticks measured.
+    /// Durations recorded.
     #[must_use]
     pub fn count(&self) -> u64 {
         self.buckets.iter().map(|b| b.load(Ordering::Relaxed)).sum()
     }
 
-    /// The `q` quantile (0–1) of the deviation from the period (µs, to the bucket's upper
-    /// edge); `None` before two ticks.
+    /// The `q` quantile (0–1) of the durations (µs, to the bucket's upper edge); `None` before
+    /// the first.
     #[must_use]
     pub fn quantile_us(&self, q: f64) -> Option<f64> {
         let total = self.count();
@@ -473,7 +495,7 @@ impl Jitter {
         None
     }
 
-    /// The largest deviation (µs).
+    /// The largest duration (µs).
     #[must_use]
     pub fn max_us(&self) -> f64 {
         self.max_ns.load(Ordering::Relaxed) as f64 / 1000.0
@@ -506,7 +528,8 @@ fn pose_words(p: &RawToolPose, arrived: u64) -> [u64; POSE_WORDS] {
     w
 }
 
-fn pose_from_words(w: &[u64; POSE_WORDS]) -> (RawToolPose, u64) {
+/// A pose record as [`LoopShared::accept_pose`] wrote it: checked there.
+fn pose_from_words(w: &[u64; POSE_WORDS]) -> (CheckedPose, u64) {
     let f = |k: usize| f64::from_bits(w[k]);
     let pose = RawToolPose {
         sequence: w[0],
@@ -521,10 +544,11 @@ fn pose_from_words(w: &[u64; POSE_WORDS]) -> (RawToolPose, u64) {
         has: w[17] as u32,
         client: (w[17] >> 32) as u32,
     };
-    (pose, w[18])
+    (CheckedPose::restored(pose), w[18])
 }
 
-fn force_words(f: &RawToolForce) -> [u64; FORCE_WORDS] {
+fn force_words(r: &Rendered) -> [u64; FORCE_WORDS] {
+    let f = &r.force;
     let mut w = [0u64; FORCE_WORDS];
     w[0] = f.pose_sequence;
     w[1] = f.timestamp_ns;
@@ -533,12 +557,18 @@ fn force_words(f: &RawToolForce) -> [u64; FORCE_WORDS] {
         *slot = v.to_bits();
     }
     w[9] = u64::from(f.tool_id) | u64::from(f.flags) << 32;
+    if let Some((p, q)) = &r.proxy {
+        w[10] = 1;
+        for (slot, v) in w[11..].iter_mut().zip(p.iter().chain(q)) {
+            *slot = v.to_bits();
+        }
+    }
     w
 }
 
-fn force_from_words(w: &[u64; FORCE_WORDS]) -> RawToolForce {
+fn force_from_words(w: &[u64; FORCE_WORDS]) -> Rendered {
     let f = |k: usize| f64::from_bits(w[k]);
-    RawToolForce {
+    let force = RawToolForce {
         pose_sequence: w[0],
         timestamp_ns: w[1],
         force: std::array::from_fn(|k| f(2 + k)),
@@ -546,7 +576,10 @@ fn force_from_words(w: &[u64; FORCE_WORDS]) -> RawToolForce {
         gripper_force: f(8),
         tool_id: w[9] as u32,
         flags: (w[9] >> 32) as u32,
-    }
+    };
+    let proxy = (w[10] != 0)
+        .then(|| (std::array::from_fn(|k| f(11 + k)), std::array::from_fn(|k| f(14 + k))));
+    Rendered { force, proxy }
 }
 
 #[cfg(test)]
@@ -564,8 +597,8 @@ mod tests {
         p.gripper_angle = 0.4;
         p.buttons = 0xdead_beef;
         p.has = 1;
-        assert_eq!(pose_from_words(&pose_words(&p, 42)), (p, 42));
-        let f = RawToolForce {
+        assert_eq!(pose_from_words(&pose_words(&p, 42)), (CheckedPose::restored(p), 42));
+        let force = RawToolForce {
             pose_sequence: 3,
             timestamp_ns: 4,
             force: [1.0, -2.0, 3.5],
@@ -574,7 +607,10 @@ mod tests {
             tool_id: 2,
             flags: 5,
         };
-        assert_eq!(force_from_words(&force_words(&f)), f);
+        for proxy in [None, Some(([0.1, 0.2, 0.3], [0.5, 0.5, -0.5, 0.5]))] {
+            let r = Rendered { force, proxy };
+            assert_eq!(force_from_words(&force_words(&r)), r);
+        }
     }
 
     /// One session drives a tool at a time: a second session's poses are refused and counted
@@ -582,7 +618,7 @@ mod tests {
     /// the fade, the tool passes to the second, whose poses are then the ones stored.
     #[test]
     fn a_second_session_cannot_take_a_driven_tool_until_its_driver_falls_silent() {
-        let shared = LoopShared::new(1);
+        let shared = LoopShared::new(1, &HapticSettings::default());
         let pose = |client, seq: u64| RawToolPose {
             sequence: seq,
             timestamp_ns: seq,
@@ -598,7 +634,7 @@ mod tests {
         assert!(shared.accept_pose(0, &pose(11, 4)));
         assert_eq!(newest(&shared), 4, "the driver goes on");
         // Session 11 falls silent for longer than the fade: 22 takes the tool.
-        std::thread::sleep(Duration::from_nanos(TIMELINE_RESET_NS) + Duration::from_millis(10));
+        std::thread::sleep(Duration::from_nanos(shared.silence_ns) + Duration::from_millis(10));
         assert!(shared.accept_pose(1, &pose(22, 5)));
         assert_eq!(newest(&shared), 5);
         assert_eq!(shared.counters.handovers.load(Ordering::Relaxed), 1);
@@ -612,7 +648,7 @@ mod tests {
     /// measured and printed, not asserted).
     #[test]
     fn gaps_in_a_stream_count_as_missing_and_a_new_stream_does_not() {
-        let shared = LoopShared::new(1);
+        let shared = LoopShared::new(1, &HapticSettings::default());
         let pose = |client, seq: u64, ts: u64| RawToolPose {
             sequence: seq,
             timestamp_ns: ts,
@@ -634,7 +670,7 @@ mod tests {
         shared.accept_pose(0, &pose(5, 7, 7));
         assert_eq!(counts(&shared), (4, 6));
         // A restarted driver (a new session, once the old one fell silent) numbers from 1.
-        std::thread::sleep(Duration::from_nanos(TIMELINE_RESET_NS + 1_000_000));
+        std::thread::sleep(Duration::from_nanos(shared.silence_ns + 1_000_000));
         shared.accept_pose(0, &pose(6, 1, 1));
         shared.accept_pose(0, &pose(6, 2, 2));
         assert_eq!(counts(&shared), (6, 6));
@@ -642,18 +678,6 @@ mod tests {
 
     #[test]
     fn the_thread_answers_poses_and_fades_when_they_stop() {
-        let shared = LoopShared::new(1);
-        let mut snap = ToolSnapshot {
-            frame: 1,
-            position: [0.0; 3],
-            orientation: [1.0, 0.0, 0.0, 0.0],
-            force: [0.0, 0.0, 1.0],
-            torque: [0.0; 3],
-            jacobian: [[0.0; 6]; 6],
-            flags: ForceFlag::InContact as u32,
-        };
-        snap.jacobian[2][2] = -500.0;
-        shared.publish_snapshot(0, &snap);
         // Staleness is measured on the wall clock: a test thread descheduled for longer than
         // the default 10 ms between two poses (a loaded machine) would see the answer to the
         // next one fading. Half a second keeps every answer whole; the fade is checked after it.
@@ -662,6 +686,19 @@ mod tests {
             stale_after_ms: 500.0,
             ..HapticSettings::default()
         };
+        let shared = LoopShared::new(1, &settings);
+        let mut snap = ToolSnapshot {
+            frame: 1,
+            position: [0.0; 3],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+            force: [0.0, 0.0, 1.0],
+            torque: [0.0; 3],
+            jacobian: [[0.0; 6]; 6],
+            flags: ForceFlag::InContact as u32,
+            proxy: Some(([0.0, 0.0, 0.002], [1.0, 0.0, 0.0, 0.0])),
+        };
+        snap.jacobian[2][2] = -500.0;
+        shared.publish_snapshot(0, &snap);
         let handle = {
             let shared = Arc::clone(&shared);
             std::thread::Builder::new()
@@ -678,10 +715,11 @@ mod tests {
             assert!(shared.offer_pose(0, &p));
             let deadline = Instant::now() + Duration::from_secs(2);
             loop {
-                if let Some((f, _)) = shared.force(0)
-                    && f.pose_sequence == seq
+                if let Some((r, _)) = shared.force(0)
+                    && r.force.pose_sequence == seq
                 {
-                    assert!((f.force[2] - 1.5).abs() < 1e-9, "{f:?}");
+                    assert!((r.force.force[2] - 1.5).abs() < 1e-9, "{r:?}");
+                    assert_eq!(r.proxy, snap.proxy, "the frame's proxy beside the force");
                     break;
                 }
                 assert!(Instant::now() < deadline, "pose {seq} never answered");
@@ -694,7 +732,7 @@ mod tests {
         assert!(shared.offer_pose(1, &bad));
         assert!(!shared.offer_pose(0, &RawToolPose::at(5, [0.0; 3])), "no tool 5");
         std::thread::sleep(Duration::from_millis(600));
-        let (f, _) = shared.force(0).unwrap();
+        let (Rendered { force: f, .. }, _) = shared.force(0).unwrap();
         assert_eq!(f.force, [0.0; 3], "not faded 600 ms after the last pose: {f:?}");
         assert_ne!(f.flags & ForceFlag::Stale as u32, 0);
         shared.stop();

@@ -20,10 +20,17 @@ pub struct ToolSnapshot {
     pub jacobian: [[f64; 6]; 6],
     /// `ToolForce` flag bits the frame sets (in contact, cutting).
     pub flags: u32,
+    /// The tool's proxy at that frame (position, orientation), if it has one: where the tissue
+    /// feels the tool, sent beside each force.
+    pub proxy: Option<([f64; 3], [f64; 4])>,
 }
 
-/// Words in a snapshot record: frame, position, orientation, force, torque, Jacobian, flags.
-pub const SNAPSHOT_WORDS: usize = 1 + 3 + 4 + 3 + 3 + 36 + 1;
+/// Words in a snapshot record: frame, position, orientation, force, torque, Jacobian, flags
+/// (with whether there is a proxy), the proxy's position and orientation.
+pub const SNAPSHOT_WORDS: usize = 1 + 3 + 4 + 3 + 3 + 36 + 1 + 7;
+
+/// The word holding the flags.
+const FLAGS: usize = 50;
 
 /// A tool's snapshot cell.
 pub type SnapshotCell = SeqCell<SNAPSHOT_WORDS>;
@@ -41,10 +48,15 @@ impl ToolSnapshot {
             .chain(&self.force)
             .chain(&self.torque)
             .chain(self.jacobian.iter().flatten());
-        for (slot, v) in w[1..].iter_mut().zip(floats) {
+        for (slot, v) in w[1..FLAGS].iter_mut().zip(floats) {
             *slot = v.to_bits();
         }
-        w[SNAPSHOT_WORDS - 1] = u64::from(self.flags);
+        w[FLAGS] = u64::from(self.flags) | u64::from(self.proxy.is_some()) << 32;
+        if let Some((p, q)) = &self.proxy {
+            for (slot, v) in w[FLAGS + 1..].iter_mut().zip(p.iter().chain(q)) {
+                *slot = v.to_bits();
+            }
+        }
         w
     }
 
@@ -59,7 +71,13 @@ impl ToolSnapshot {
             force: std::array::from_fn(|k| f(8 + k)),
             torque: std::array::from_fn(|k| f(11 + k)),
             jacobian: std::array::from_fn(|r| std::array::from_fn(|c| f(14 + 6 * r + c))),
-            flags: w[SNAPSHOT_WORDS - 1] as u32,
+            flags: w[FLAGS] as u32,
+            proxy: (w[FLAGS] >> 32 != 0).then(|| {
+                (
+                    std::array::from_fn(|k| f(FLAGS + 1 + k)),
+                    std::array::from_fn(|k| f(FLAGS + 4 + k)),
+                )
+            }),
         }
     }
 }
@@ -78,7 +96,10 @@ mod tests {
             torque: [0.01, 0.02, 0.03],
             jacobian: std::array::from_fn(|r| std::array::from_fn(|c| (r * 6 + c) as f64 - 7.5)),
             flags: 3,
+            proxy: Some(([0.1, -0.2, 0.29], [0.5, -0.5, 0.5, 0.5])),
         };
         assert_eq!(ToolSnapshot::from_words(&s.to_words()), s);
+        let none = ToolSnapshot { proxy: None, ..s };
+        assert_eq!(ToolSnapshot::from_words(&none.to_words()), none);
     }
 }

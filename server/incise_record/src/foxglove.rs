@@ -1,6 +1,10 @@
 //! The session in Foxglove's schemas: the organ and the tools as a `foxglove.SceneUpdate`, and
-//! each tool's pose as a `foxglove.PoseInFrame`, all in one frame of reference
-//! ([`FRAME_ID`], the simulation's grid frame).
+//! each tool's device pose and proxy pose as a `foxglove.PoseInFrame`, all in one frame of
+//! reference ([`FRAME_ID`], the simulation's grid frame).
+//!
+//! A tool with a proxy is drawn where its proxy is (the tool the tissue feels: `tool/<name>`),
+//! with a translucent ghost of it at the device's pose and a line between the two, the coupling
+//! (`device/<name>`). The force arrow starts at the device.
 
 use crate::visual::{Mesh, ToolLook, ToolShape, label_colour};
 use incise_protocol::foxglove as fg;
@@ -43,15 +47,19 @@ fn position(p: Option<&v1::Vec3>) -> [f64; 3] {
     p.map_or([0.0; 3], |p| [p.x, p.y, p.z])
 }
 
-/// A tool's pose as Foxglove's `PoseInFrame`.
+/// A pose (a device's or a proxy's) as Foxglove's `PoseInFrame`.
 #[must_use]
-pub fn pose_in_frame(pose: &v1::ToolPose, sim_time_s: f64) -> fg::PoseInFrame {
+pub fn pose_in_frame(
+    at: Option<&v1::Vec3>,
+    rotation: Option<&v1::Quaternion>,
+    sim_time_s: f64,
+) -> fg::PoseInFrame {
     fg::PoseInFrame {
         timestamp: Some(timestamp(sim_time_s)),
         frame_id: FRAME_ID.into(),
         pose: Some(fg::Pose {
-            position: Some(vector(position(pose.position.as_ref()))),
-            orientation: Some(orientation(pose.orientation.as_ref())),
+            position: Some(vector(position(at))),
+            orientation: Some(orientation(rotation)),
         }),
     }
 }
@@ -109,40 +117,21 @@ pub fn scene_update(
         else {
             continue;
         };
+        let device = (position(pose.position.as_ref()), orientation(pose.orientation.as_ref()));
+        // The tool the tissue feels is the proxy; the device's pose is drawn as a ghost of it,
+        // tied to it by the coupling's line.
+        let felt = state.proxy.as_ref().map_or(device, |p| {
+            (position(p.position.as_ref()), orientation(p.orientation.as_ref()))
+        });
         let mut tool = entity(format!("tool/{}", look.name));
-        let at = position(pose.position.as_ref());
-        let q = orientation(pose.orientation.as_ref());
-        let rotate = |v: [f64; 3]| rotate(&q, v);
-        let grey = Some(colour([160, 160, 170, 255]));
-        match look.shape {
-            ToolShape::Sphere { centre, radius } => tool.spheres.push(fg::SpherePrimitive {
-                pose: Some(placed(at, rotate(centre), q)),
-                size: Some(vector([2.0 * radius; 3])),
-                color: grey,
-            }),
-            // Foxglove has no capsule: a box around its axis shows where it is.
-            ToolShape::Capsule { start, radius, length } => tool.cubes.push(fg::CubePrimitive {
-                pose: Some(placed(at, rotate([start[0], start[1], start[2] + length / 2.0]), q)),
-                size: Some(vector([2.0 * radius, 2.0 * radius, length + 2.0 * radius])),
-                color: grey,
-            }),
-            ToolShape::Box { min, max } => tool.cubes.push(fg::CubePrimitive {
-                pose: Some(placed(
-                    at,
-                    rotate(std::array::from_fn(|i| f64::midpoint(min[i], max[i]))),
-                    q,
-                )),
-                size: Some(vector(std::array::from_fn(|i| max[i] - min[i]))),
-                color: grey,
-            }),
-        }
+        draw_shape(&mut tool, look.shape, &felt.0, &felt.1, colour([160, 160, 170, 255]));
         let force = position(state.force.as_ref());
         let magnitude = force.iter().map(|c| c * c).sum::<f64>().sqrt();
         if magnitude > 0.0 {
             let length = magnitude * ARROW_M_PER_N;
             tool.arrows.push(fg::ArrowPrimitive {
                 pose: Some(fg::Pose {
-                    position: Some(vector(at)),
+                    position: Some(vector(device.0)),
                     orientation: Some(x_onto(force.map(|c| c / magnitude))),
                 }),
                 shaft_length: length * 0.8,
@@ -153,8 +142,58 @@ pub fn scene_update(
             });
         }
         entities.push(tool);
+        if state.proxy.is_some() {
+            let mut ghost = entity(format!("device/{}", look.name));
+            draw_shape(&mut ghost, look.shape, &device.0, &device.1, colour([120, 170, 250, 90]));
+            let point = |p: [f64; 3]| fg::Point3 { x: p[0], y: p[1], z: p[2] };
+            ghost.lines.push(fg::LinePrimitive {
+                r#type: fg::line_primitive::Type::LineStrip as i32,
+                pose: None,
+                thickness: 2.0,
+                scale_invariant: true,
+                points: vec![point(device.0), point(felt.0)],
+                color: Some(colour([120, 170, 250, 255])),
+                colors: Vec::new(),
+                indices: Vec::new(),
+            });
+            entities.push(ghost);
+        }
     }
     fg::SceneUpdate { deletions: Vec::new(), entities }
+}
+
+/// A tool's outer shape at the pose (`at`, `q`), in `colour`.
+fn draw_shape(
+    entity: &mut fg::SceneEntity,
+    shape: ToolShape,
+    at: &[f64; 3],
+    q: &fg::Quaternion,
+    colour: fg::Color,
+) {
+    let (at, q) = (*at, *q);
+    let rotate = |v: [f64; 3]| rotate(&q, v);
+    match shape {
+        ToolShape::Sphere { centre, radius } => entity.spheres.push(fg::SpherePrimitive {
+            pose: Some(placed(at, rotate(centre), q)),
+            size: Some(vector([2.0 * radius; 3])),
+            color: Some(colour),
+        }),
+        // Foxglove has no capsule: a box around its axis shows where it is.
+        ToolShape::Capsule { start, radius, length } => entity.cubes.push(fg::CubePrimitive {
+            pose: Some(placed(at, rotate([start[0], start[1], start[2] + length / 2.0]), q)),
+            size: Some(vector([2.0 * radius, 2.0 * radius, length + 2.0 * radius])),
+            color: Some(colour),
+        }),
+        ToolShape::Box { min, max } => entity.cubes.push(fg::CubePrimitive {
+            pose: Some(placed(
+                at,
+                rotate(std::array::from_fn(|i| f64::midpoint(min[i], max[i]))),
+                q,
+            )),
+            size: Some(vector(std::array::from_fn(|i| max[i] - min[i]))),
+            color: Some(colour),
+        }),
+    }
 }
 
 /// A pose at the tool's position plus `offset` (already rotated), with the tool's rotation.
@@ -228,6 +267,42 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_tool_is_drawn_at_its_proxy_with_a_ghost_at_its_device() {
+        let v = |x: f64, y: f64, z: f64| Some(v1::Vec3 { x, y, z });
+        let record = v1::FrameRecord {
+            poses: vec![v1::ToolPose {
+                tool_id: 0,
+                position: v(0.0, 0.0, -0.01),
+                ..v1::ToolPose::default()
+            }],
+            tools: vec![v1::ToolState {
+                tool_id: 0,
+                force: v(0.0, 0.0, 2.0),
+                proxy: Some(v1::Pose { position: v(0.0, 0.0, 0.005), orientation: None }),
+                ..v1::ToolState::default()
+            }],
+            ..v1::FrameRecord::default()
+        };
+        let look = ToolLook {
+            name: "probe".into(),
+            shape: ToolShape::Sphere { centre: [0.0; 3], radius: 0.002 },
+        };
+        let mesh = Mesh { positions: Vec::new(), triangles: Vec::new(), labels: Vec::new() };
+        let update = scene_update(0.0, &mesh, &[look], Some(&record));
+        let ids: Vec<&str> = update.entities.iter().map(|e| e.id.as_str()).collect();
+        assert_eq!(ids, ["organ", "tool/probe", "device/probe"]);
+        // The poses are copied, not computed: bit for bit.
+        let z =
+            |pose: &Option<fg::Pose>| pose.as_ref().unwrap().position.as_ref().unwrap().z.to_bits();
+        let (tool, ghost) = (&update.entities[1], &update.entities[2]);
+        assert_eq!(z(&tool.spheres[0].pose), 0.005f64.to_bits());
+        assert_eq!(z(&tool.arrows[0].pose), (-0.01f64).to_bits(), "the force is the device's");
+        assert_eq!(z(&ghost.spheres[0].pose), (-0.01f64).to_bits());
+        let line: Vec<f64> = ghost.lines[0].points.iter().map(|p| p.z).collect();
+        assert_eq!(line, [-0.01, 0.005]);
     }
 
     #[test]

@@ -12,8 +12,9 @@
 //! | `/incise/edit` | `incise.v1.TopologyEdit` | every frame that cut: the voxels removed, links severed or tetrahedra removed |
 //! | `/incise/keyframe` | `incise.v1.Keyframe` | once a second of simulated time: the whole state a replay restores to start there (with the edits before it) |
 //! | `/incise/surface` | `incise.v1.SurfaceMesh` | the organ's surface: whole on the first frame and once a second (keyframes); every vertex's position at the geometry rate; each topology change on the frame that made it |
-//! | `/foxglove/scene` | `foxglove.SceneUpdate` | the organ (a triangle list per tissue label) and the tools with their force arrows, every [`Session::scene_interval_s`] of simulated time |
-//! | `/foxglove/tools/<name>/pose` | `foxglove.PoseInFrame` | every frame's pose of each tool |
+//! | `/foxglove/scene` | `foxglove.SceneUpdate` | the organ (a triangle list per tissue label) and the tools (each at its proxy, with a ghost at its device and the coupling between) with their force arrows, every [`Session::scene_interval_s`] of simulated time |
+//! | `/foxglove/tools/<name>/pose` | `foxglove.PoseInFrame` | every frame's device pose of each tool |
+//! | `/foxglove/tools/<name>/proxy` | `foxglove.PoseInFrame` | every frame's proxy pose of each tool that has one |
 //!
 //! The `foxglove.*` channels use Foxglove's published schemas, so Foxglove draws the session
 //! without a plugin.

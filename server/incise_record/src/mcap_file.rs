@@ -27,8 +27,8 @@ pub const KEYFRAME_TOPIC: &str = "/incise/keyframe";
 /// The topic of the scene in Foxglove's schema (`foxglove.SceneUpdate`): the organ and the
 /// tools with their force arrows.
 pub const SCENE_TOPIC: &str = "/foxglove/scene";
-/// The topic prefix of each tool's pose in Foxglove's schema (`foxglove.PoseInFrame`):
-/// `/foxglove/tools/<name>/pose`.
+/// The topic prefix of each tool's poses in Foxglove's schema (`foxglove.PoseInFrame`):
+/// `/foxglove/tools/<name>/pose` (the device's) and `/foxglove/tools/<name>/proxy` (its proxy's).
 pub const POSE_TOPIC_PREFIX: &str = "/foxglove/tools/";
 
 /// What went wrong writing a recording, and to which file.
@@ -83,7 +83,8 @@ pub struct McapRecording {
     edit_channel: u16,
     keyframe_channel: u16,
     scene_channel: u16,
-    pose_channels: Vec<u16>,
+    /// Each tool's device pose channel and proxy pose channel.
+    pose_channels: Vec<(u16, u16)>,
     tools: Vec<ToolLook>,
     scene_interval_s: f64,
     /// When the last scene update was written (simulated s).
@@ -127,9 +128,13 @@ impl McapRecording {
             .tools
             .iter()
             .map(|t| {
-                channel("foxglove.PoseInFrame", &format!("{POSE_TOPIC_PREFIX}{}/pose", t.name))
+                let topic = |what: &str| format!("{POSE_TOPIC_PREFIX}{}/{what}", t.name);
+                Ok((
+                    channel("foxglove.PoseInFrame", &topic("pose"))?,
+                    channel("foxglove.PoseInFrame", &topic("proxy"))?,
+                ))
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<Vec<_>, RecordError>>()?;
         let metadata = BTreeMap::from([
             ("incise_version".to_owned(), session.version.clone()),
             ("git_revision".to_owned(), session.git_revision.clone()),
@@ -209,13 +214,25 @@ impl McapRecording {
         RecordError { path: self.path.clone(), what: format!("cannot write: {e}") }
     }
 
-    /// Writes a frame's record, and each of its poses as a `foxglove.PoseInFrame`.
+    /// Writes a frame's record, and each of its device poses and proxy poses as a
+    /// `foxglove.PoseInFrame`.
     pub fn frame(&mut self, record: &v1::FrameRecord) -> Result<(), RecordError> {
-        self.write(self.frame_channel, record.sim_time_s, &record.encode_to_vec())?;
+        let t = record.sim_time_s;
+        self.write(self.frame_channel, t, &record.encode_to_vec())?;
         for pose in &record.poses {
-            if let Some(&channel) = self.pose_channels.get(pose.tool_id as usize) {
-                let message = foxglove::pose_in_frame(pose, record.sim_time_s);
-                self.write(channel, record.sim_time_s, &message.encode_to_vec())?;
+            if let Some(&(channel, _)) = self.pose_channels.get(pose.tool_id as usize) {
+                let message =
+                    foxglove::pose_in_frame(pose.position.as_ref(), pose.orientation.as_ref(), t);
+                self.write(channel, t, &message.encode_to_vec())?;
+            }
+        }
+        for state in &record.tools {
+            if let (Some(&(_, channel)), Some(proxy)) =
+                (self.pose_channels.get(state.tool_id as usize), &state.proxy)
+            {
+                let message =
+                    foxglove::pose_in_frame(proxy.position.as_ref(), proxy.orientation.as_ref(), t);
+                self.write(channel, t, &message.encode_to_vec())?;
             }
         }
         self.frames += 1;

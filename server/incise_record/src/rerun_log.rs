@@ -4,9 +4,11 @@
 //! | entity | what | when |
 //! |---|---|---|
 //! | `organ` | `Mesh3D`, vertex colours by tissue label | every surface frame (positions only while the topology holds) |
-//! | `tools/<name>` | `Transform3D` (the tool's pose) | every surface frame |
+//! | `tools/<name>` | `Transform3D`: the tool the tissue feels (its proxy; its device's pose when it has none) | every surface frame |
 //! | `tools/<name>/outer` | the outer shape (ellipsoid, capsule or box) | once |
-//! | `forces/<name>` | `Arrows3D`, 2 cm per newton, from the tool's origin | every surface frame |
+//! | `devices/<name>` | `Transform3D` (the device's pose), with a translucent ghost of the outer shape under it | every surface frame |
+//! | `couplings/<name>` | `LineStrips3D`: the coupling spring from the device's origin to the proxy's | every surface frame |
+//! | `forces/<name>` | `Arrows3D`, 2 cm per newton, from the device's origin | every surface frame |
 //! | `plots/force/<name>` | force x, y, z (N) | every frame |
 //! | `plots/frame_ms`, `plots/stage/<stage>_ms` | frame and stage wall times | every frame |
 //! | `plots/contact_points`, `plots/frame_rate_hz` | | every frame |
@@ -27,6 +29,20 @@ use std::time::Duration;
 
 /// The application id every incise recording carries (how the viewer groups them).
 pub const APPLICATION_ID: &str = "incise";
+
+/// A recorded pose as a Rerun translation and rotation (the rotation normalised; identity when
+/// it cannot be).
+fn transform(p: Option<&v1::Vec3>, q: Option<&v1::Quaternion>) -> ([f32; 3], rerun::Quaternion) {
+    let p = p.copied().unwrap_or_default();
+    let q = q.copied().unwrap_or_default();
+    let n = (q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z).sqrt();
+    let rotation = if n > 0.0 && n.is_finite() {
+        rerun::Quaternion::from_xyzw([q.x, q.y, q.z, q.w].map(|c| (c / n) as f32))
+    } else {
+        rerun::Quaternion::IDENTITY
+    };
+    ([p.x as f32, p.y as f32, p.z as f32], rotation)
+}
 
 /// How a file's rows are gathered into chunks: a file has no viewer waiting on it, so rows
 /// gather for a second (Rerun's default is 200 ms), which makes a fifth as many chunks, each
@@ -112,34 +128,43 @@ impl RerunLog {
         log
     }
 
-    /// Each tool's outer shape, in its own frame, once.
+    /// Each tool's outer shape, in its own frame, once: solid on the tool (its proxy), a
+    /// translucent ghost on its device.
     fn tool_shapes(&self) {
         let grey = rerun::Color::from_unmultiplied_rgba(160, 160, 170, 255);
+        let ghost = rerun::Color::from_unmultiplied_rgba(120, 170, 250, 90);
         let f = |v: [f64; 3]| v.map(|c| c as f32);
         for look in &self.tools {
-            let path = format!("tools/{}/outer", look.name);
-            let result = match look.shape {
-                ToolShape::Sphere { centre, radius } => self.stream.log_static(
-                    path,
-                    &rerun::Ellipsoids3D::from_centers_and_radii([f(centre)], [radius as f32])
-                        .with_colors([grey]),
-                ),
-                ToolShape::Capsule { start, radius, length } => self.stream.log_static(
-                    path,
-                    &rerun::Capsules3D::from_lengths_and_radii([length as f32], [radius as f32])
+            for (path, colour) in [
+                (format!("tools/{}/outer", look.name), grey),
+                (format!("devices/{}/outer", look.name), ghost),
+            ] {
+                let result = match look.shape {
+                    ToolShape::Sphere { centre, radius } => self.stream.log_static(
+                        path,
+                        &rerun::Ellipsoids3D::from_centers_and_radii([f(centre)], [radius as f32])
+                            .with_colors([colour]),
+                    ),
+                    ToolShape::Capsule { start, radius, length } => self.stream.log_static(
+                        path,
+                        &rerun::Capsules3D::from_lengths_and_radii(
+                            [length as f32],
+                            [radius as f32],
+                        )
                         .with_translations([f(start)])
-                        .with_colors([grey]),
-                ),
-                ToolShape::Box { min, max } => self.stream.log_static(
-                    path,
-                    &rerun::Boxes3D::from_mins_and_sizes(
-                        [f(min)],
-                        [f(std::array::from_fn(|i| max[i] - min[i]))],
-                    )
-                    .with_colors([grey]),
-                ),
-            };
-            warn(result);
+                        .with_colors([colour]),
+                    ),
+                    ToolShape::Box { min, max } => self.stream.log_static(
+                        path,
+                        &rerun::Boxes3D::from_mins_and_sizes(
+                            [f(min)],
+                            [f(std::array::from_fn(|i| max[i] - min[i]))],
+                        )
+                        .with_colors([colour]),
+                    ),
+                };
+                warn(result);
+            }
         }
     }
 
@@ -262,19 +287,28 @@ impl RerunLog {
             let Some(pose) = record.poses.iter().find(|p| p.tool_id == state.tool_id) else {
                 continue;
             };
-            let p = pose.position.unwrap_or_default();
-            let q = pose.orientation.unwrap_or_default();
-            let at = [p.x as f32, p.y as f32, p.z as f32];
-            let n = (q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z).sqrt();
-            let rotation = if n > 0.0 && n.is_finite() {
-                rerun::Quaternion::from_xyzw([q.x, q.y, q.z, q.w].map(|c| (c / n) as f32))
-            } else {
-                rerun::Quaternion::IDENTITY
-            };
+            let device = transform(pose.position.as_ref(), pose.orientation.as_ref());
+            // Without a proxy the tool is where its device is.
+            let felt = state
+                .proxy
+                .as_ref()
+                .map_or(device, |p| transform(p.position.as_ref(), p.orientation.as_ref()));
             warn(self.stream.log(
                 format!("tools/{}", look.name),
-                &rerun::Transform3D::from_translation_rotation(at, rotation),
+                &rerun::Transform3D::from_translation_rotation(felt.0, felt.1),
             ));
+            warn(self.stream.log(
+                format!("devices/{}", look.name),
+                &rerun::Transform3D::from_translation_rotation(device.0, device.1),
+            ));
+            warn(
+                self.stream.log(
+                    format!("couplings/{}", look.name),
+                    &rerun::LineStrips3D::new([[device.0, felt.0]])
+                        .with_colors([rerun::Color::from_unmultiplied_rgba(120, 170, 250, 255)]),
+                ),
+            );
+            let at = device.0;
             let f = state.force.unwrap_or_default();
             let arrow = [f.x, f.y, f.z].map(|c| (c * ARROW_M_PER_N) as f32);
             warn(

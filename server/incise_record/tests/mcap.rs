@@ -42,6 +42,7 @@ fn frame(i: u64) -> v1::FrameRecord {
             flags: 1,
             contact_points: (i % 5) as u32,
             held_points: 0,
+            proxy: Some(v1::Pose::of([0.0, 0.0, i as f64 * 1e-4 + 0.001], [1.0, 0.0, 0.0, 0.0])),
         }],
         state_hash: i.wrapping_mul(0x9e37_79b9_7f4a_7c15),
         stats: Some(v1::FrameStats { frame: i, frame_ms: 0.2, ..Default::default() }),

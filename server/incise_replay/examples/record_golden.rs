@@ -8,9 +8,11 @@
 //! blade in separation mode laid flat at 2.5 cm, drawn through the block along +y until every
 //! link across that plane is severed and the top piece is free; the blade holds it a moment,
 //! is pulled out sideways, and the piece falls (through the block: pieces do not collide yet). The frames are stepped as the server steps them
-//! (each pose converted by `incise_server::physics::tool_input`), so they replay bit for bit.
+//! (each pose checked, recorded as checked and converted by
+//! `incise_server::physics::tool_input`), so they replay bit for bit.
 
 use anyhow::Context;
+use incise_protocol::check::check_pose;
 use incise_protocol::raw::RawToolPose;
 use incise_record::{McapRecording, Session};
 use incise_server::keyframe::{edit_message, keyframe_message};
@@ -114,11 +116,13 @@ fn record(
             sequence: i as u64,
             ..RawToolPose::at(0, position)
         };
-        let input = tool_input(&raw).context("a scripted pose is unusable")?;
+        // Checked as the server checks a pose where it enters, and recorded as checked.
+        let checked = check_pose(&raw).context("a scripted pose is unusable")?;
+        let input = tool_input(&checked);
         let started = std::time::Instant::now();
         let frame = sim.step(&StepInputs { tools: vec![input], ..StepInputs::default() })?;
         let stats = frame_stats(&frame, &sim, started.elapsed(), 0.0);
-        recording.frame(&frame_record(&frame, &[raw], stats))?;
+        recording.frame(&frame_record(&frame, &[*checked.raw()], stats))?;
         for cut in &frame.surgical.cuts {
             recording.cut(&cut_event(&frame, cut), frame.time)?;
         }

@@ -12,6 +12,7 @@
 //! (frames, cuts, the surface), without stepping anything: a frame range starts at the whole
 //! surface (keyframe) at or before it.
 
+use incise_protocol::check::CheckedPose;
 use incise_protocol::raw::RawToolPose;
 use incise_protocol::v1;
 use incise_record::Contents;
@@ -145,13 +146,15 @@ pub fn seek(contents: &Contents, sim: &mut Simulation) -> anyhow::Result<u64> {
     Ok(keyframe.frame)
 }
 
-/// Replays `contents` on `sim`, calling `progress` after every frame; stops at the first
-/// divergence. The frames `sim` has already stepped (or restored, see [`seek`]) are skipped.
+/// Replays `contents` on `sim`, calling `progress` after every frame (with the frames stepped so
+/// far, the simulation and the frame it stepped: what a report measures on the replayed
+/// state); stops at the first divergence. The frames `sim` has already stepped (or restored, see
+/// [`seek`]) are skipped.
 pub fn replay(
     contents: &Contents,
     sim: &mut Simulation,
     compare: Compare,
-    mut progress: impl FnMut(u64),
+    mut progress: impl FnMut(u64, &Simulation, &incise_sim::Frame),
 ) -> Outcome {
     let started = Instant::now();
     let mut frames = 0;
@@ -164,7 +167,8 @@ pub fn replay(
             .poses
             .iter()
             .filter_map(|p| RawToolPose::try_from(p).ok())
-            .filter_map(|raw| incise_server::physics::tool_input(&raw))
+            .filter_map(|raw| CheckedPose::verified(&raw).ok())
+            .map(|pose| incise_server::physics::tool_input(&pose))
             .collect();
         let inputs = StepInputs { tools, ..StepInputs::default() };
         let diverged = |frames: u64, what: String, deviation: f64| Outcome {
@@ -178,7 +182,7 @@ pub fn replay(
         };
         frames += 1;
         if record.frame < compare.from.unwrap_or(0) {
-            progress(frames);
+            progress(frames, sim, &frame);
             continue;
         }
         if frame.index != record.frame {
@@ -191,7 +195,7 @@ pub fn replay(
         if compare.tolerance.is_none() && frame.state_hash != record.state_hash {
             return diverged(frames, "state".into(), 0.0);
         }
-        progress(frames);
+        progress(frames, sim, &frame);
     }
     Outcome { frames, divergence: None, elapsed: started.elapsed() }
 }

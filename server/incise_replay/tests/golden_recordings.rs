@@ -16,7 +16,7 @@ fn every_golden_recording_replays_bit_for_bit() {
         let contents = incise_record::read_recording(&std::fs::read(&path).unwrap()).unwrap();
         assert!(contents.truncated.is_none(), "{}: {:?}", path.display(), contents.truncated);
         let mut sim = simulation(&contents, &dir).unwrap();
-        let outcome = replay(&contents, &mut sim, Compare::default(), |_| {});
+        let outcome = replay(&contents, &mut sim, Compare::default(), |_, _, _| {});
         println!(
             "{}: {} frames in {:.2} s",
             path.display(),
@@ -54,7 +54,7 @@ fn every_keyframe_of_the_golden_recordings_starts_a_bit_exact_replay() {
             let mut sim = simulation(&contents, &dir).unwrap();
             assert_eq!(incise_replay::seek(&contents, &mut sim).unwrap(), k);
             let compare = Compare { from: Some(k + 1), ..Compare::default() };
-            let outcome = replay(&contents, &mut sim, compare, |_| {});
+            let outcome = replay(&contents, &mut sim, compare, |_, _, _| {});
             assert_eq!(
                 outcome.divergence,
                 None,

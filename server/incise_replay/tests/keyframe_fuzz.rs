@@ -112,8 +112,12 @@ fn damage_values(m: &mut v1::Keyframe, rng: &mut Rng) {
         }
         5 => {
             if let Some(t) = m.tools.get_mut(rng.below(2)) {
-                t.memory_vertices.push(u32::MAX);
-                t.memory_directions.extend([0.0, 0.0, 1.0]);
+                // A proxy pose one value short, or not finite.
+                if t.proxy.len() == 7 && rng.below(2) == 0 {
+                    t.proxy[rng.below(7)] = f64::NAN;
+                } else {
+                    t.proxy.truncate(6);
+                }
             }
         }
         6 => {

@@ -7,7 +7,7 @@ use incise_math::Vec3;
 use incise_protocol::v1;
 use incise_sim::{Frame, Keyframe, ToolState};
 use incise_tool::grasp::Held;
-use incise_tool::{ContactMemory, Grasp, Pose, ToolPose};
+use incise_tool::{Grasp, Pose, ToolPose};
 
 /// The topology change `frame` made, when it made one.
 #[must_use]
@@ -99,14 +99,16 @@ fn tool_message(i: usize, t: &ToolState) -> v1::ToolKeyState {
     v1::ToolKeyState {
         tool_id: i as u32,
         posed: t.pose.is_some(),
-        position: t.pose.map(|p| p.pose.position().to_vec()).unwrap_or_default(),
-        rotation: t.pose.map(|p| p.pose.rotation().to_vec()).unwrap_or_default(),
-        gripper: t.pose.map_or(0.0, |p| p.gripper),
-        memory_vertices: t.memory.entries().iter().map(|e| e.0).collect(),
-        memory_directions: t.memory.entries().iter().flat_map(|e| e.1).collect(),
+        position: t.pose.map(|p| p.pose().position().to_vec()).unwrap_or_default(),
+        rotation: t.pose.map(|p| p.pose().rotation().to_vec()).unwrap_or_default(),
+        gripper: t.pose.map_or(0.0, |p| p.gripper()),
         jaws_closed: t.grasp.is_closed(),
         held_vertices: held.iter().map(|h| h.id).collect(),
         held_anchors: held.iter().flat_map(|h| h.anchor).collect(),
+        proxy: t
+            .proxy
+            .map(|p| p.position().into_iter().chain(p.rotation()).collect())
+            .unwrap_or_default(),
     }
 }
 
@@ -186,18 +188,26 @@ fn tool_state(t: &v1::ToolKeyState) -> Result<ToolState, String> {
                 t.gripper
             ));
         }
-        Some(ToolPose { pose: Pose::restored(position, rotation), gripper: t.gripper })
+        Some(ToolPose::restored(position, rotation, t.gripper))
     } else {
         None
     };
-    let memory = ContactMemory::from_entries(per_vertex(
-        &t.memory_vertices,
-        &t.memory_directions,
-        "contact directions",
-    )?)?;
+    let proxy = match t.proxy.len() {
+        0 => None,
+        7 if t.proxy.iter().all(|c| c.is_finite()) => Some(Pose::restored(
+            [t.proxy[0], t.proxy[1], t.proxy[2]],
+            [t.proxy[3], t.proxy[4], t.proxy[5], t.proxy[6]],
+        )),
+        n => {
+            return Err(format!(
+                "a proxy pose of {n} values, or not finite (7 finite ones wanted: position, \
+                 rotation)"
+            ));
+        }
+    };
     let held = per_vertex(&t.held_vertices, &t.held_anchors, "held anchors")?
         .into_iter()
         .map(|(id, anchor)| Held { id, anchor })
         .collect();
-    Ok(ToolState { pose, memory, grasp: Grasp::restored(t.jaws_closed, held) })
+    Ok(ToolState { pose, proxy, grasp: Grasp::restored(t.jaws_closed, held) })
 }

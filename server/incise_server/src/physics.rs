@@ -4,7 +4,7 @@
 
 use crate::network::{Outbox, Outgoing};
 use incise_haptics::{LoopShared, ToolSnapshot};
-use incise_protocol::check::check_pose;
+use incise_protocol::check::CheckedPose;
 use incise_protocol::raw::RawToolPose;
 use incise_protocol::v1::{self, ForceFlag};
 use incise_record::{Record, RecordHandle, SurfaceFrame, ToolLook, ToolShape};
@@ -230,25 +230,24 @@ pub fn tool_looks(config: &SceneConfig) -> Vec<ToolLook> {
         .collect()
 }
 
-/// Each tool's newest usable pose (an unusable one is left to the haptic loop to count), and
-/// the poses as received (for the recording).
+/// Each tool's newest pose (checked where it entered: the haptic loop's hand-off keeps only
+/// usable ones), and the poses as received (for the recording).
 fn newest_poses(shared: &LoopShared, tools: usize) -> (Vec<ToolInput>, Vec<RawToolPose>) {
     (0..tools)
         .filter_map(|tool| {
-            let (raw, _) = shared.newest_pose(tool)?;
-            Some((tool_input(&raw)?, raw))
+            let (pose, _) = shared.newest_pose(tool)?;
+            Some((tool_input(&pose), *pose.raw()))
         })
         .unzip()
 }
 
-/// The step's input for a pose as received: checked (and its quaternion normalised) as the
-/// haptic loop checks it; `None` when unusable. A replay converts recorded poses with this same
-/// function, so that it steps with the very inputs the server did.
+/// The step's input for a checked pose, without another check: its numbers exactly as the
+/// check left them. A replay converts recorded poses with this same function (after checking
+/// them, as it reads them from a file), so that it steps with the very inputs the server did.
 #[must_use]
-pub fn tool_input(raw: &RawToolPose) -> Option<ToolInput> {
-    let p = check_pose(raw).ok()?;
-    let pose = ToolPose::new(p.position, p.orientation, p.gripper_angle).ok()?;
-    Some(ToolInput { tool: raw.tool_id as usize, pose })
+pub fn tool_input(pose: &CheckedPose) -> ToolInput {
+    let tool_pose = ToolPose::restored(pose.position, pose.orientation, pose.gripper_angle);
+    ToolInput { tool: pose.tool_id as usize, pose: tool_pose }
 }
 
 /// Hands the recorder what a replay needs beyond `frame`'s record: the topology change it made,
@@ -281,6 +280,7 @@ pub fn frame_record(frame: &Frame, used: &[RawToolPose], stats: v1::FrameStats) 
             flags: tool_flags(frame, i),
             contact_points: t.contact_points as u32,
             held_points: t.held_points as u32,
+            proxy: t.proxy.map(|p| v1::Pose::of(p.position(), p.rotation())),
         })
         .collect();
     v1::FrameRecord {
@@ -328,12 +328,13 @@ fn hand_over(frame: &Frame, shared: &LoopShared, stats: &PhysicsStats) {
             i,
             &ToolSnapshot {
                 frame: frame.index,
-                position: pose.pose.position(),
-                orientation: pose.pose.rotation(),
+                position: pose.pose().position(),
+                orientation: pose.pose().rotation(),
                 force: lin.force,
                 torque: lin.torque,
                 jacobian: lin.jacobian,
                 flags,
+                proxy: tool.proxy.map(|p| (p.position(), p.rotation())),
             },
         );
         let un = (lin.force.iter().map(|c| c * c).sum::<f64>().sqrt() * 1e6) as u64;

@@ -10,64 +10,8 @@ use std::path::Path;
 /// replay reads it from `--scene-dir`.
 pub const STORED_FILE_LIMIT: u64 = 16 << 20;
 
-/// The embedded scene: an 8 × 6 × 5 cm organ (6 kPa) holding a stiffer tumour (40 kPa),
-/// resting on its held base, at level 2 (2.5 mm voxels, 1 cm elements) stepped implicitly at
-/// 1 ms; a scalpel whose blade sits just inside its narrow outer shape (it pushes, then cuts
-/// once pressed in) and a grasper whose jaws reach 1 cm from its hinge, where a small ball
-/// touches the tissue.
-pub const DEMO_SCENE: &str = r#"name = "demo_organ"
-level = 2
-gravity = [0.0, 0.0, -9.81]
-
-[volume]
-procedural = "organ"
-size_m = [0.08, 0.06, 0.05]
-voxels = [32, 24, 20]
-
-[[materials]]
-label = 1
-youngs_modulus = 6000.0
-poisson_ratio = 0.45
-density = 1060.0
-
-[[materials]]
-label = 2
-youngs_modulus = 40000.0
-poisson_ratio = 0.45
-density = 1060.0
-
-[model]
-kind = "corotational"
-
-[integrator]
-kind = "implicit-euler"
-dt = 0.001
-rayleigh_alpha = 2.0
-rayleigh_beta = 0.01
-
-[[fixed]]
-min = [-1.0, -1.0, -1.0]
-max = [1.0, 1.0, 0.01]
-
-[[tools]]
-name = "scalpel"
-stiffness = 50.0
-cutting = "remove"
-outer = { shape = "box", half_extents = [0.006, 0.002, 0.008], offset = [0.0, 0.0, 0.008] }
-inner = { shape = "blade", length = 0.012, height = 0.014, thickness = 0.0035, offset = [0.0, 0.0, 0.0005] }
-
-[[tools]]
-name = "grasper"
-stiffness = 200.0
-outer = { shape = "sphere", radius = 0.002 }
-
-[tools.jaws]
-length = 0.01
-width = 0.008
-close_below = 0.05
-open_above = 0.3
-stiffness = 300.0
-"#;
+/// The embedded scene (`incise_scene::DEMO_SCENE`).
+pub use incise_scene::DEMO_SCENE;
 
 /// The scene at `path`, or the embedded one.
 pub fn load(path: Option<&Path>) -> anyhow::Result<Scene> {

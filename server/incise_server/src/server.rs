@@ -113,8 +113,8 @@ impl LoopIo for HapticIo {
     fn forces_ready(&mut self, shared: &LoopShared, tools: u64) {
         if let Some(ports) = &self.shm {
             for tool in (0..shared.tools().min(64)).filter(|t| tools & (1 << t) != 0) {
-                if let Some((force, _)) = shared.force(tool) {
-                    ports.send_force(&force);
+                if let Some((rendered, _)) = shared.force(tool) {
+                    ports.send_force(&rendered.force);
                 }
             }
         }
@@ -233,7 +233,7 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
         );
     }
     let tools: Vec<String> = config.tools.iter().map(|t| t.name.clone()).collect();
-    let shared = LoopShared::new(tools.len());
+    let shared = LoopShared::new(tools.len(), &options.haptics);
     let faults = Arc::new(Faults::default());
     let handler: PoseHandler = {
         let shared = Arc::clone(&shared);
@@ -288,11 +288,13 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
             while !stop.load(Ordering::Acquire) {
                 std::thread::park_timeout(Duration::from_millis(100));
                 for (tool, last) in sent.iter_mut().enumerate() {
-                    if let Some((force, version)) = shared.force(tool)
+                    if let Some((rendered, version)) = shared.force(tool)
                         && version > *last
                     {
                         *last = version;
-                        transports.send_zenoh_force(&force);
+                        let message =
+                            v1::ToolForce::from(&rendered.force).with_proxy(rendered.proxy);
+                        transports.send_zenoh_force(&message);
                     }
                 }
             }

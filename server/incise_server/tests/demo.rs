@@ -158,9 +158,11 @@ fn the_demo_presses_cuts_grasps_and_reports() {
     assert_eq!(j["schemas"]["/foxglove/scene"], "foxglove.SceneUpdate");
     assert!(j["topics"]["/foxglove/scene"].as_u64().unwrap() >= sim_s as u64 * 2);
     for tool in ["scalpel", "grasper"] {
-        let topic = format!("/foxglove/tools/{tool}/pose");
-        assert_eq!(j["schemas"][&topic], "foxglove.PoseInFrame", "{topic}");
-        assert!(j["topics"][&topic].as_u64().unwrap() > 0, "{topic}");
+        for what in ["pose", "proxy"] {
+            let topic = format!("/foxglove/tools/{tool}/{what}");
+            assert_eq!(j["schemas"][&topic], "foxglove.PoseInFrame", "{topic}");
+            assert!(j["topics"][&topic].as_u64().unwrap() > 0, "{topic}");
+        }
     }
 
     // Rerun's own tool accepts the `.rrd` file.

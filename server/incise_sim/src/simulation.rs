@@ -147,27 +147,6 @@ pub enum InputError {
         /// Tools in the scene.
         tools: usize,
     },
-    /// A pose with a NaN or infinite position or rotation (`Pose::at` and `Pose::moved` do not
-    /// check what they are given).
-    #[error(
-        "tools[{entry}]: the pose (position {position:?} m, rotation {rotation:?}) is not finite"
-    )]
-    BadPose {
-        /// Index into `tools`.
-        entry: usize,
-        /// The position given.
-        position: Vec3,
-        /// The rotation given, `(w, x, y, z)`.
-        rotation: [f64; 4],
-    },
-    /// A gripper angle that is not finite or is negative.
-    #[error("tools[{entry}]: the gripper angle {gripper} rad is not a finite angle ≥ 0")]
-    BadGripper {
-        /// Index into `tools`.
-        entry: usize,
-        /// The angle given.
-        gripper: f64,
-    },
     /// A cut the tools made was refused by the grid (an internal error: the tools only name
     /// voxels and links the grid has).
     #[error("the tools' cut: {0}")]
@@ -472,8 +451,8 @@ impl Simulation {
                 Some(spec) => Some(volume_contact(spec, &body, &surface).map_err(build)?),
                 None => None,
             };
-            let mut surgery =
-                Surgery::new(&config.tools, surface, implicit_step(&config)).map_err(build)?;
+            let defaults = tool_defaults(&config, &body);
+            let mut surgery = Surgery::new(&config.tools, surface, &defaults).map_err(build)?;
             if let Some(volume) = volume {
                 surgery.set_volume_contact(volume);
             }
@@ -1182,6 +1161,36 @@ fn volume_contact(
             &surface.rest_positions(&tet.model.rest),
             |_| None,
         ),
+    }
+}
+
+/// What the tools' defaults depend on ([`surgery::ToolDefaults`]): the implicit step, the mean
+/// node mass, and with an explicit integrator a coupling stiffness its step keeps stable on the
+/// lightest node: `m / 8h²`, a thirty-second of a lone spring's limit `4m / h²`, since the
+/// node's elasticity takes most of that limit already (a scene's step is chosen near its mesh's
+/// own) and the overlap penalty (held to the same limit) some more.
+fn tool_defaults(config: &SceneConfig, body: &Body) -> surgery::ToolDefaults {
+    let lumped = match body {
+        Body::Hex(hex) => incise_fem::model::Mass::lumped(&hex.model),
+        Body::Tet(tet) => incise_fem::model::Mass::lumped(&tet.model),
+    };
+    let node_mass = lumped.iter().sum::<f64>() / lumped.len().max(1) as f64;
+    let lightest = lumped.iter().copied().filter(|&m| m > 0.0).fold(f64::INFINITY, f64::min);
+    let explicit_step = match body {
+        Body::Hex(hex) => match hex.stepper {
+            HexStepper::Explicit { dt, stable_dt, .. } => Some(dt.min(stable_dt)),
+            _ => None,
+        },
+        Body::Tet(tet) => matches!(tet.stepper, TetStepper::Explicit(_)).then(|| config.dt()),
+    };
+    surgery::ToolDefaults {
+        implicit_dt: implicit_step(config),
+        node_mass,
+        explicit_limit: explicit_step.map(|h| lightest / (8.0 * h * h)),
+        voxel: match body {
+            Body::Hex(hex) => Some(hex.grid.spacing().into_iter().fold(0.0, f64::max)),
+            Body::Tet(_) => None,
+        },
     }
 }
 

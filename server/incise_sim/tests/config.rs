@@ -567,7 +567,7 @@ fn tools_are_scene_keys() {
     assert!(matches!(inner.primitive(), Some(Primitive::Blade { .. })));
     let path = scalpel.path.as_ref().unwrap();
     let halfway = path.at(0.5);
-    assert!((halfway.pose.position()[2] - 0.03).abs() < 1e-15);
+    assert!((halfway.pose().position()[2] - 0.03).abs() < 1e-15);
     assert_eq!(grasper.cutting, Cutting::Off);
     assert_eq!(
         grasper.outer,
@@ -618,7 +618,13 @@ fn tool_errors_name_the_key_and_line() {
         (SCALPEL.replace("stiffness = 400.0", "contact = \"volume\""), first + 2, "tools[0].contact", "mesh"),
         (SCALPEL.replace("stiffness = 400.0", "stiffness = 400.0\ncontact = \"springs\""), first + 3, "tools[0].contact", "springs"),
         (SCALPEL.replace("name = \"grasper\"\n", "name = \"grasper\"\ncontact = \"volume\"\n"), first + 17, "tools[1].stiffness", "pressure"),
-        (SCALPEL.replace("stiffness = 400.0\n", ""), first, "tools[0].stiffness", "missing"),
+        (SCALPEL.replace("damping = 0.02", "damping = 0.02\ncoupling_stiffness = -5.0"), first + 4, "tools[0].coupling_stiffness", "between"),
+        (SCALPEL.replace("damping = 0.02", "damping = 0.02\ncoupling_damping = -1.0"), first + 4, "tools[0].coupling_damping", "-1"),
+        (SCALPEL.replace("damping = 0.02", "damping = 0.02\nmax_force = 0.0"), first + 4, "tools[0].max_force", "positive"),
+        (SCALPEL.replace("damping = 0.02", "damping = 0.02\nfriction = -0.1"), first + 4, "tools[0].friction", "-0.1"),
+        (SCALPEL.replace("damping = 0.02", "damping = 0.02\ncut_force = 0.0"), first + 4, "tools[0].cut_force", "positive"),
+        (SCALPEL.replace("name = \"grasper\"\n", "name = \"grasper\"\ncut_force = 1.0\n"), first + 16, "tools[1].cut_force", "cutting"),
+        (SCALPEL.replace("name = \"grasper\"\nstiffness = 300.0\n", "name = \"grasper\"\ncontact = \"volume\"\ncoupling_stiffness = 500.0\n"), first + 17, "tools[1].coupling_stiffness", "volume"),
     ];
     for (tools, line, key, what) in cases {
         let text = with_tools(&tools);

@@ -41,13 +41,14 @@ value = 0.0
 }
 
 /// A scalpel that presses into the top (z = 2 cm) at t = 0.3 s and strokes along y until 1.2 s,
-/// and a grasper (its jaws turned to reach down) that closes on the top at 0.6 s, lifts, and lets
-/// go at 1.8 s.
+/// cutting from a light push on (the soft block yields under a harder one), and a grasper (its
+/// jaws turned to reach down) that closes on the top at 0.6 s, lifts, and lets go at 1.8 s.
 const CUT_AND_GRASP: &str = r#"
 [[tools]]
 name = "scalpel"
 stiffness = 400.0
 cutting = "remove"
+cut_force = 0.05
 outer = { shape = "capsule", radius = 0.002, length = 0.03 }
 inner = { shape = "capsule", radius = 0.0015, length = 0.03 }
 [[tools.path]]
@@ -71,7 +72,7 @@ outer = { shape = "sphere", radius = 0.003 }
 length = 0.008
 width = 0.004
 close_below = 0.05
-open_above = 0.3
+open_above = 0.4
 stiffness = 300.0
 [[tools.path]]
 time = 0.0
@@ -270,18 +271,22 @@ fn adaptive_tensor_mass_with_cutting_restores_bit_for_bit() {
 
 #[test]
 fn explicit_tensor_mass_restores_bit_for_bit() {
-    // Central differences keep the previous positions. The explicit step within the mesh's
-    // stable step (9.6e-4 s), and the tools' springs soft enough for it: they push and grasp
-    // without cutting, which would lower that step below dt (the tensor-mass integrator takes
-    // no sub-steps).
+    // Central differences keep the previous positions. The explicit step well within the mesh's
+    // stable step at rest (9.6e-4 s): the scalpel's proxy, held on the surface 7 mm above its
+    // device, presses one coarse node hard enough that the stretched St Venant-Kirchhoff
+    // elements around it stiffen, and a step near the rest limit diverges. The tools' springs
+    // soft enough for the step (the couplings' default with an explicit step is as stiff as it
+    // keeps stable): they push and grasp without cutting, which would lower that step below dt
+    // (the tensor-mass integrator takes no sub-steps).
     let model = "kind = \"tensor-mass\"\nelasticity = \"svk\"\nadaptive_threshold = 0.0005";
-    let explicit = "kind = \"explicit\"\ndt = 0.0008\nrayleigh_alpha = 2.0";
+    let explicit = "kind = \"explicit\"\ndt = 0.0006\nrayleigh_alpha = 2.0";
     let tools = CUT_AND_GRASP
-        .replace("cutting = \"remove\"", "cutting = \"off\"")
+        .replace("cutting = \"remove\"\ncut_force = 0.05", "cutting = \"off\"")
         .replace("stiffness = 400.0", "stiffness = 20.0")
         .replace("stiffness = 300.0", "stiffness = 20.0");
     let text = scene(model, explicit, &tools);
-    let ([before, after], held) = restores_bit_for_bit(&text, 2600);
+    // Keyframes every second: at 1 s (grasp held) and 2 s.
+    let ([before, after], held) = restores_bit_for_bit(&text, 3400);
     assert_eq!([before, after], [[0; 3]; 2], "nothing cuts");
     assert!(held > 0, "the grasper holds the tissue at 1 s");
 }

@@ -6,6 +6,7 @@
 //! and contact asks only about surface points inside the tool's bounding box, so the closest
 //! triangle is found by a scan with a bounding-sphere test per triangle.
 
+use crate::geometry::{Feature, closest_on_triangle, norm, sub, unit};
 use incise_math::Vec3;
 use incise_math::mat3::{cross, dot};
 use incise_mesh::TriMesh;
@@ -25,66 +26,6 @@ pub struct MeshShape {
     /// Each triangle's circumscribing sphere: centre and radius.
     spheres: Vec<(Vec3, f64)>,
     bounds: (Vec3, Vec3),
-}
-
-/// `a − b`.
-pub(crate) fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn norm(a: Vec3) -> f64 {
-    dot(&a, &a).sqrt()
-}
-
-fn unit(a: Vec3) -> Vec3 {
-    let n = norm(a);
-    if n > 0.0 { a.map(|c| c / n) } else { a }
-}
-
-/// Where the closest point of a triangle lies.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Feature {
-    Face,
-    Edge(usize),
-    Vertex(usize),
-}
-
-/// The closest point of triangle `(a, b, c)` to `p`, and its feature (Ericson, Real-Time
-/// Collision Detection, §5.1.5).
-fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> (Vec3, Feature) {
-    let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
-    let (d1, d2) = (dot(&ab, &ap), dot(&ac, &ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return (a, Feature::Vertex(0));
-    }
-    let bp = sub(p, b);
-    let (d3, d4) = (dot(&ab, &bp), dot(&ac, &bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return (b, Feature::Vertex(1));
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (std::array::from_fn(|k| a[k] + v * ab[k]), Feature::Edge(0));
-    }
-    let cp = sub(p, c);
-    let (d5, d6) = (dot(&ab, &cp), dot(&ac, &cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return (c, Feature::Vertex(2));
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (std::array::from_fn(|k| a[k] + w * ac[k]), Feature::Edge(2));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (std::array::from_fn(|k| b[k] + w * (c[k] - b[k])), Feature::Edge(1));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let (v, w) = (vb * denom, vc * denom);
-    (std::array::from_fn(|k| a[k] + ab[k] * v + ac[k] * w), Feature::Face)
 }
 
 impl MeshShape {
@@ -170,7 +111,7 @@ impl MeshShape {
                 continue;
             }
             let v = |i: usize| self.vertices[tri[i] as usize];
-            let (q, feature) = closest_on_triangle(p, v(0), v(1), v(2));
+            let (q, feature) = closest_on_triangle(p, [v(0), v(1), v(2)]).point_feature();
             let d = sub(p, q);
             let d2 = dot(&d, &d);
             if d2 < best.0 {

@@ -86,7 +86,7 @@ mod tests {
     use super::*;
 
     fn at(x: f64, gripper: f64) -> ToolPose {
-        ToolPose { pose: Pose::at([x, 0.0, 0.0]), gripper }
+        ToolPose::from_pose(Pose::at([x, 0.0, 0.0]), gripper).unwrap()
     }
 
     #[test]
@@ -97,10 +97,10 @@ mod tests {
         ])
         .unwrap();
         let mid = path.at(0.25);
-        assert!((mid.pose.position()[0] - 0.0025).abs() < 1e-15);
-        assert!((mid.gripper - 0.375).abs() < 1e-15);
-        assert!((path.at(-1.0).pose.position()[0]).abs() < 1e-15);
-        assert!((path.at(9.0).pose.position()[0] - 0.01).abs() < 1e-15);
+        assert!((mid.pose().position()[0] - 0.0025).abs() < 1e-15);
+        assert!((mid.gripper() - 0.375).abs() < 1e-15);
+        assert!((path.at(-1.0).pose().position()[0]).abs() < 1e-15);
+        assert!((path.at(9.0).pose().position()[0] - 0.01).abs() < 1e-15);
         let bad = vec![
             Waypoint { time: 1.0, pose: at(0.0, 0.0) },
             Waypoint { time: 1.0, pose: at(0.0, 0.0) },

@@ -143,6 +143,12 @@ impl Pose {
         Self { position, rotation, matrix: rotation.to_matrix() }
     }
 
+    /// The same rotation at `position` (m).
+    #[must_use]
+    pub fn with_position(&self, position: Vec3) -> Self {
+        Self { position, ..*self }
+    }
+
     /// The pose moved by a small translation `dt` (m) and a small rotation vector `dtheta`
     /// (rad, grid frame, about the tool's origin): what a haptic loop extrapolates over.
     /// Unchecked like [`Self::at`]: a NaN or infinite translation makes a pose that is not finite.
@@ -160,22 +166,53 @@ impl Pose {
     }
 }
 
-/// A tool's pose with its gripper: what a device sends each frame.
+/// A tool's pose with its gripper: what a device sends each frame, checked. The only ways to
+/// make one check it ([`Self::new`], [`Self::from_pose`]) or restore one that was
+/// ([`Self::restored`]), so whoever takes one (the haptic loop's hand-off, the physics, the
+/// simulation) can use it as it is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ToolPose {
-    /// Where the tool is.
-    pub pose: Pose,
-    /// The jaws' opening angle (rad); 0 closed. Tools without jaws ignore it.
-    pub gripper: f64,
+    pub(crate) pose: Pose,
+    pub(crate) gripper: f64,
 }
 
 impl ToolPose {
     /// A checked tool pose (see [`Pose::new`]); the gripper angle must be finite and ≥ 0.
     pub fn new(position: Vec3, rotation: [f64; 4], gripper: f64) -> Result<Self, PoseError> {
+        Self::from_pose(Pose::new(position, rotation)?, gripper)
+    }
+
+    /// `pose` with `gripper`, checked: a pose the program computed ([`Pose::at`],
+    /// [`Pose::moved`]) is refused if any of its numbers is not finite.
+    pub fn from_pose(pose: Pose, gripper: f64) -> Result<Self, PoseError> {
+        let (position, rotation) = (pose.position(), pose.rotation());
+        if !position.iter().chain(&rotation).all(|c| c.is_finite()) {
+            return Err(PoseError::NotFinite { position, rotation });
+        }
         if !(gripper.is_finite() && gripper >= 0.0) {
             return Err(PoseError::BadGripper { angle: gripper });
         }
-        Ok(Self { pose: Pose::new(position, rotation)?, gripper })
+        Ok(Self { pose, gripper })
+    }
+
+    /// A tool pose exactly as one that was checked gave it ([`Pose::restored`]: its rotation is
+    /// not normalised again, so the bits are the same): one read back from where the program
+    /// kept it, or one checked by the wire protocol's own check. Not checked again.
+    #[must_use]
+    pub fn restored(position: Vec3, rotation: [f64; 4], gripper: f64) -> Self {
+        Self { pose: Pose::restored(position, rotation), gripper }
+    }
+
+    /// Where the tool is.
+    #[must_use]
+    pub fn pose(&self) -> &Pose {
+        &self.pose
+    }
+
+    /// The jaws' opening angle (rad); 0 closed. Tools without jaws ignore it.
+    #[must_use]
+    pub fn gripper(&self) -> f64 {
+        self.gripper
     }
 }
 
@@ -192,6 +229,8 @@ mod tests {
         assert!(scaled.to_string().contains("norm 2"), "{scaled}");
         assert!(Pose::new([0.0; 3], [0.0; 4]).is_err());
         assert!(ToolPose::new([0.0; 3], [1.0, 0.0, 0.0, 0.0], -0.1).is_err());
+        assert!(ToolPose::from_pose(Pose::at([f64::NAN, 0.0, 0.0]), 0.0).is_err());
+        assert!(ToolPose::from_pose(Pose::at([0.0; 3]), f64::INFINITY).is_err());
         let near = Pose::new([0.0; 3], [1.0 + 1e-6, 0.0, 0.0, 0.0]).unwrap();
         assert_eq!(near.rotation(), [1.0, 0.0, 0.0, 0.0]);
     }

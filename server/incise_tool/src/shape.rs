@@ -202,6 +202,34 @@ impl Shape {
         (a, b)
     }
 
+    /// The shape grown by `margin` (m) on every side: a primitive with each size grown (a box's
+    /// corners stay sharp, a little more than the points within `margin` of the shape); a mesh
+    /// is returned as it is.
+    #[must_use]
+    pub fn inflated(&self, margin: f64) -> Self {
+        let Kind::Primitive(primitive) = &self.kind else { return self.clone() };
+        let (primitive, offset) = match *primitive {
+            Primitive::Sphere { radius } => {
+                (Primitive::Sphere { radius: radius + margin }, self.offset)
+            }
+            Primitive::Capsule { radius, length } => {
+                (Primitive::Capsule { radius: radius + margin, length }, self.offset)
+            }
+            Primitive::Cuboid { half_extents } => {
+                (Primitive::Cuboid { half_extents: half_extents.map(|h| h + margin) }, self.offset)
+            }
+            Primitive::Blade { length, height, thickness } => (
+                Primitive::Blade {
+                    length: length + 2.0 * margin,
+                    height: height + 2.0 * margin,
+                    thickness: thickness + 2.0 * margin,
+                },
+                [self.offset[0], self.offset[1], self.offset[2] - margin],
+            ),
+        };
+        Self { kind: Kind::Primitive(primitive), offset }
+    }
+
     /// The shape's thinnest dimension (m): a moving tool is tested for crossing points at
     /// sub-steps shorter than half of it, so that nothing passes through it between two tests.
     /// For a mesh, the smallest extent of its bounding box (an upper bound for a mesh with
@@ -225,45 +253,29 @@ impl Shape {
         }
     }
 
-    /// Where a ray from `q` along the unit direction `d` (tool frame) leaves the shape for the
-    /// last time before it is past the bounding box: the distance along the ray, or `None` when
-    /// the ray misses. The primitives are convex, so a ray enters and leaves at most once.
+    /// Whether the ray from `q` along the unit direction `d` (tool frame) meets the shape before
+    /// it is past the shape's bounding box: sphere tracing, each step the distance to the shape,
+    /// which never oversteps its surface.
     #[must_use]
-    pub fn exit_along(&self, q: Vec3, d: Vec3) -> Option<f64> {
+    pub fn ray_meets(&self, q: Vec3, d: Vec3) -> bool {
         let (lo, hi) = self.bounds();
         let reach = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
             + (0..3).map(|k| (q[k] - 0.5 * (lo[k] + hi[k])).powi(2)).sum::<f64>().sqrt();
-        let at = |s: f64| self.distance(std::array::from_fn(|k| q[k] + s * d[k])).0;
         let tiny = 1e-9 * reach.max(1e-12);
-        // Sphere tracing: a step of φ never crosses the surface.
         let mut s = 0.0;
-        let mut phi = at(s);
-        while phi > tiny {
+        // Each step is at least the distance to the surface, so a grazing ray near a face takes
+        // many; past this many it is taken as missing.
+        for _ in 0..256 {
+            let phi = self.distance(std::array::from_fn(|k| q[k] + s * d[k])).0;
+            if phi <= tiny {
+                return true;
+            }
             s += phi;
             if s > reach {
-                return None;
+                return false;
             }
-            phi = at(s);
         }
-        // Inside: march in steps of |φ| (the distance to the nearest surface point bounds the
-        // distance to the exit from below), then bisect the last step.
-        let mut inside = s;
-        loop {
-            let step = (-at(inside)).max(tiny);
-            let next = inside + step;
-            if next > reach {
-                return Some(reach);
-            }
-            if at(next) >= 0.0 {
-                let (mut a, mut b) = (inside, next);
-                for _ in 0..60 {
-                    let m = 0.5 * (a + b);
-                    if at(m) < 0.0 { a = m } else { b = m }
-                }
-                return Some(b);
-            }
-            inside = next;
-        }
+        false
     }
 }
 
@@ -336,7 +348,7 @@ mod tests {
     }
 
     #[test]
-    fn bounds_contain_the_shape_and_rays_exit_on_the_surface() {
+    fn bounds_contain_the_shape_and_rays_toward_it_meet_it() {
         for shape in shapes() {
             let (lo, hi) = shape.bounds();
             for i in 0..500 {
@@ -348,11 +360,27 @@ mod tests {
             }
             let centre: Vec3 = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
             let below: Vec3 = std::array::from_fn(|k| centre[k] - if k == 0 { 0.2 } else { 0.0 });
-            let s = shape.exit_along(below, [1.0, 0.0, 0.0]).expect("the ray crosses the shape");
-            let exit: Vec3 = std::array::from_fn(|k| below[k] + if k == 0 { s } else { 0.0 });
-            assert!(shape.distance(exit).0.abs() < 1e-9, "{shape:?}");
-            assert!((exit[0] - hi[0]).abs() < 1e-9, "{shape:?}: exit {exit:?}");
-            assert_eq!(shape.exit_along(below, [-1.0, 0.0, 0.0]), None);
+            assert!(shape.ray_meets(below, [1.0, 0.0, 0.0]), "{shape:?}: toward it");
+            assert!(!shape.ray_meets(below, [-1.0, 0.0, 0.0]), "{shape:?}: away from it");
+            let beside: Vec3 = std::array::from_fn(|k| below[k] + if k == 1 { 0.2 } else { 0.0 });
+            assert!(!shape.ray_meets(beside, [1.0, 0.0, 0.0]), "{shape:?}: beside it");
+        }
+    }
+
+    #[test]
+    fn an_inflated_shape_holds_what_lies_within_the_margin() {
+        for shape in shapes() {
+            let grown = shape.inflated(0.001);
+            for i in 0..500 {
+                let q: Vec3 = std::array::from_fn(|k| 0.06 * ((i * 7 + k * 3) as f64 * 0.53).sin());
+                let d = shape.distance(q).0;
+                if d < 0.001 - 1e-12 {
+                    assert!(grown.distance(q).0 < 1e-12, "{shape:?}: {q:?} at {d} m");
+                }
+                if d > 0.001 * 3f64.sqrt() + 1e-12 {
+                    assert!(grown.distance(q).0 > 0.0, "{shape:?}: {q:?} at {d} m");
+                }
+            }
         }
     }
 

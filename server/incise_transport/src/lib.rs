@@ -156,11 +156,11 @@ impl ServerSide {
         }
     }
 
-    /// Sends a tool's force over zenoh (iceoryx2's forces go from the thread holding its
-    /// [`shm::ShmPorts`]).
-    pub fn send_zenoh_force(&self, force: &incise_protocol::raw::RawToolForce) {
+    /// Sends a tool's force over zenoh, with its proxy's pose (iceoryx2's forces go from the
+    /// thread holding its [`shm::ShmPorts`]).
+    pub fn send_zenoh_force(&self, force: &v1::ToolForce) {
         if let Some(z) = &self.zenoh {
-            z.send_force(force);
+            z.send_tool_force(force);
         }
     }
 

@@ -233,8 +233,14 @@ impl ZenohServer {
 
     /// Publishes a tool's force.
     pub fn send_force(&self, force: &RawToolForce) {
+        self.send_tool_force(&v1::ToolForce::from(force));
+    }
+
+    /// Publishes a tool's force as a message (with what the shared-memory record lacks: the
+    /// proxy's pose).
+    pub fn send_tool_force(&self, force: &v1::ToolForce) {
         if let Some(p) = self.forces.get(force.tool_id as usize) {
-            self.put(p, v1::ToolForce::from(force).encode_to_vec());
+            self.put(p, force.encode_to_vec());
         }
     }
 

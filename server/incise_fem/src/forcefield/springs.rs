@@ -1,4 +1,4 @@
-//! Springs on embedded points: the force field of a tool's penalty contact and of a grasp.
+//! Springs on embedded points: the force field of a tool's push on the tissue and of a grasp.
 //!
 //! A surface vertex is not a node: it is embedded in an element, `p(x) = Σₐ wₐ xₐ` (trilinear
 //! weights in a hexahedron, or a single weight 1 on a tetrahedral vertex). A spring pulls it
@@ -8,10 +8,10 @@
 //! f_p = −S (p(x) − t),    fₐ = wₐ f_p,    E = ½ (p − t)ᵀ S (p − t),    K_ab = wₐ w_b S
 //! ```
 //!
-//! A penalty contact against a tool's outer shape is the spring `S = k n nᵀ` whose target is the
-//! point's projection onto the shape's surface (the shape linearised at the contact point: its
-//! tangent plane), so the force is `k · depth` along the normal and the stiffness the implicit
-//! step needs is exact for that plane. A grasp is `S = k I` toward the point's anchor in the
+//! A tool's push through a surface point its proxy touches is the spring `S = k n nᵀ` whose
+//! target lies along the contact normal by the depth it pushes (the proxy's surface linearised
+//! at the contact: its tangent plane), so the force is `k · depth` along the normal and the
+//! stiffness the implicit step needs is exact for that plane. A grasp is `S = k I` toward the point's anchor in the
 //! jaws. Both are linear in `x`, so [`ForceField::update`] has nothing to do, and the step's
 //! matrix gains `h² wₐ w_b S`: a stiff contact is integrated implicitly, like the tissue, which
 //! is what keeps it stable at dt = 10 ms.

@@ -132,7 +132,7 @@ fn run() -> anyhow::Result<bool> {
         .expect("a valid template"),
     );
     let compare = Compare { tolerance: cli.tolerance, from: cli.from, to: cli.to };
-    let outcome = replay(&contents, &mut sim, compare, |n| {
+    let outcome = replay(&contents, &mut sim, compare, |n, _, _| {
         if n % 64 == 0 {
             bar.set_position(n);
         }

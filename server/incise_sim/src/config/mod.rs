@@ -11,7 +11,10 @@
 
 mod tools;
 
-pub use tools::{Cutting, ShapeSpec, ToolContact, ToolSpec};
+pub use tools::{
+    CouplingSpec, Cutting, DEFAULT_COUPLING_STIFFNESS, DEFAULT_CUT_FORCE, DEFAULT_MAX_FORCE,
+    DEFAULT_PENALTY_STIFFNESS, ShapeSpec, ToolContact, ToolSpec,
+};
 
 pub use incise_fem::ElementKind;
 use incise_fem::forcefield::tet::Elasticity;

@@ -3,10 +3,15 @@
 //! ```toml
 //! [[tools]]
 //! name = "scalpel"
-//! contact = "points"          # "points" (default) or "volume" (a mesh outer shape)
-//! stiffness = 400.0            # N/m per surface point in contact ("points" only)
-//! damping = 0.02               # N·s/m per point, along the normal (default: stiffness × dt, implicit)
+//! contact = "points"          # "points" (default: a proxy) or "volume" (a mesh outer shape)
+//! coupling_stiffness = 1000.0  # N/m between the device and the proxy (default 1000)
+//! coupling_damping = 2.0       # N·s/m (default: critical against a node of the tissue, implicit)
+//! max_force = 8.0              # N, the most the coupling pushes the tissue with (default 8)
+//! friction = 0.0               # Coulomb μ between the proxy and the tissue (default 0)
+//! stiffness = 400.0            # N/m per point of tissue overlapping the proxy (default 500)
+//! damping = 0.02               # N·s/m per such point, along the normal (default: stiffness × dt)
 //! cutting = "remove"           # "off" (default), "remove" (voxels), "separate" (links)
+//! cut_force = 1.0              # N across the inner shape at which it cuts (default 1)
 //! outer = { shape = "capsule", radius = 0.002, length = 0.05 }
 //! inner = { shape = "blade", length = 0.004, height = 0.003, thickness = 0.001 }
 //! # a closed triangle mesh instead: outer = { mesh = "tools/probe.stl", unit = "mm" }
@@ -27,7 +32,7 @@
 
 use super::{Checker, LengthUnit, SceneError};
 use incise_math::Vec3;
-use incise_tool::{Jaws, Pose, Primitive, Shape, ToolPath, ToolPose, Waypoint};
+use incise_tool::{Jaws, Primitive, Shape, ToolPath, ToolPose, Waypoint};
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -42,30 +47,73 @@ pub struct ToolSpec {
     pub inner: Option<ShapeSpec>,
     /// How its outer shape pushes the tissue (`contact`).
     pub contact: ToolContact,
-    /// Penalty stiffness per surface point in contact (N/m, `stiffness`; required with
-    /// `contact = "points"`, 0 and unused with `"volume"`).
+    /// The virtual coupling between the device and the tool's proxy (`coupling_stiffness`,
+    /// `coupling_damping`, `max_force`, `friction`; `contact = "points"` only).
+    pub coupling: CouplingSpec,
+    /// Penalty stiffness per point of tissue overlapping the proxy (N/m, `stiffness`; default
+    /// [`DEFAULT_PENALTY_STIFFNESS`] with `contact = "points"`, 0 and unused with `"volume"`):
+    /// what pushes the walls of a cut out of the blade in it, or tissue that moved onto a tool.
     pub stiffness: f64,
-    /// Damping per surface point along the contact normal, on its velocity relative to the
+    /// Damping per overlapping point along the contact normal, on its velocity relative to the
     /// tool (N·s/m, `damping`). Without the key, `stiffness × dt` (the jaws' stiffness for a
-    /// grasp) with an implicit integrator, 0 with an explicit one. A stiff contact resolves a penetration `d` within one implicit step and leaves the
-    /// point moving off at `d / dt`, which throws it out of contact and lets it fall back, frame
-    /// after frame; damping `k·dt` closes half the penetration per step without overshoot, so
-    /// the contact settles, and it is small beside the contact's stiffness at haptic rates.
+    /// grasp) with an implicit integrator, 0 with an explicit one. A stiff contact resolves a
+    /// penetration `d` within one implicit step and leaves the point moving off at `d / dt`,
+    /// which throws it out of contact and lets it fall back, frame after frame; damping `k·dt`
+    /// closes half the penetration per step without overshoot, so the contact settles, and it
+    /// is small beside the contact's stiffness at haptic rates.
     pub damping: Option<f64>,
     /// Whether and how it cuts (`cutting`).
     pub cutting: Cutting,
+    /// The force across its inner shape at which it cuts (N, `cut_force`; default
+    /// [`DEFAULT_CUT_FORCE`]): paper 1's pressure threshold (Fig. 11) as the coupling's push
+    /// through the part of the outer shape in front of the inner one, so a broad tool spreads the
+    /// same push over more surface and cuts later than a sharp one.
+    pub cut_force: f64,
     /// Its jaws, for a grasper (`[tools.jaws]`).
     pub jaws: Option<Jaws>,
     /// Its scripted path (`[[tools.path]]`), when the scene drives it.
     pub path: Option<ToolPath>,
 }
 
+/// The virtual coupling between a tool's device and its proxy.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CouplingSpec {
+    /// The spring (N/m, `coupling_stiffness`); without the key, [`DEFAULT_COUPLING_STIFFNESS`],
+    /// or with an explicit integrator as much of it as the explicit step `h` keeps stable on the
+    /// tissue's lightest node `m`: `m / 8h²`.
+    pub stiffness: Option<f64>,
+    /// The damper (N·s/m, `coupling_damping`); without the key, the critical damping of the
+    /// spring against the model's mean node mass `m`, `2 √(k m)` (a tissue node pushed through
+    /// the spring takes up the device's speed without ringing), with an implicit integrator; 0
+    /// with an explicit one.
+    pub damping: Option<f64>,
+    /// The largest force it pushes the tissue with (N, `max_force`; default
+    /// [`DEFAULT_MAX_FORCE`]).
+    pub max_force: f64,
+    /// Coulomb friction between the proxy and the tissue (`friction`, ≥ 0; default 0).
+    pub friction: f64,
+}
+
+impl Default for CouplingSpec {
+    fn default() -> Self {
+        Self { stiffness: None, damping: None, max_force: DEFAULT_MAX_FORCE, friction: 0.0 }
+    }
+}
+
+/// The default coupling stiffness (N/m): within what a desktop haptic device renders stably.
+pub const DEFAULT_COUPLING_STIFFNESS: f64 = 1000.0;
+/// The default largest coupling force (N): a desktop device's continuous maximum.
+pub const DEFAULT_MAX_FORCE: f64 = 8.0;
+/// The default per-point penalty on tissue overlapping a proxy (N/m).
+pub const DEFAULT_PENALTY_STIFFNESS: f64 = 500.0;
+/// The default force across a tool's inner shape at which it cuts (N).
+pub const DEFAULT_CUT_FORCE: f64 = 1.0;
+
 /// How a tool's outer shape pushes the tissue.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ToolContact {
-    /// A spring on each surface point inside the shape, along the shape's normal (`"points"`,
-    /// the default): any shape, with `stiffness` per point, swept so a fast tool does not
-    /// tunnel through the surface.
+    /// A proxy that follows the device but never enters the tissue, pushing the surface's
+    /// triangles it touches with the coupling's spring (`"points"`, the default): any shape.
     #[default]
     Points,
     /// The volume of the overlap of the tool's closed mesh with the organ's surface, pushed
@@ -122,7 +170,17 @@ pub(super) struct RawTool {
     #[serde(default)]
     damping: Option<Spanned<f64>>,
     #[serde(default)]
+    coupling_stiffness: Option<Spanned<f64>>,
+    #[serde(default)]
+    coupling_damping: Option<Spanned<f64>>,
+    #[serde(default)]
+    max_force: Option<Spanned<f64>>,
+    #[serde(default)]
+    friction: Option<Spanned<f64>>,
+    #[serde(default)]
     cutting: Option<Spanned<String>>,
+    #[serde(default)]
+    cut_force: Option<Spanned<f64>>,
     #[serde(default)]
     jaws: Option<Spanned<RawJaws>>,
     #[serde(default)]
@@ -203,13 +261,7 @@ impl Checker<'_> {
                 (Some(s), ToolContact::Points) => {
                     self.within(s, &at("stiffness"), (0.0, MAX_STIFFNESS), "N/m")?
                 }
-                (None, ToolContact::Points) => {
-                    return Err(self.invalid(
-                        t.span(),
-                        &at("stiffness"),
-                        "is missing: the penalty stiffness per surface point in contact (N/m)",
-                    ));
-                }
+                (None, ToolContact::Points) => DEFAULT_PENALTY_STIFFNESS,
                 (Some(s), ToolContact::Volume) => {
                     return Err(self.invalid(
                         s.span(),
@@ -226,6 +278,7 @@ impl Checker<'_> {
                 }
                 None => None,
             };
+            let coupling = self.coupling(raw_tool, contact, k)?;
             let outer = self.shape(&raw_tool.outer, &at("outer"))?;
             if contact == ToolContact::Volume && !matches!(outer, ShapeSpec::Mesh { .. }) {
                 let span = raw_tool.contact.as_ref().map_or(t.span(), Spanned::span);
@@ -281,6 +334,17 @@ impl Checker<'_> {
                     Some(_) => {}
                 }
             }
+            let cut_force = match &raw_tool.cut_force {
+                Some(f) if cutting == Cutting::Off => {
+                    return Err(self.invalid(
+                        f.span(),
+                        &at("cut_force"),
+                        "is the force at which the tool cuts; it needs `cutting`",
+                    ));
+                }
+                Some(f) => self.positive(f, &at("cut_force"))?,
+                None => DEFAULT_CUT_FORCE,
+            };
             let jaws = raw_tool.jaws.as_ref().map(|j| self.jaws(j, k)).transpose()?;
             let path =
                 if raw_tool.path.is_empty() { None } else { Some(self.path(&raw_tool.path, k)?) };
@@ -289,9 +353,11 @@ impl Checker<'_> {
                 outer,
                 inner,
                 contact,
+                coupling,
                 stiffness,
                 damping,
                 cutting,
+                cut_force,
                 jaws,
                 path,
             });
@@ -408,6 +474,53 @@ impl Checker<'_> {
             .map_err(|e| self.invalid(s.span(), key, e.to_string()))
     }
 
+    /// A tool's coupling keys; a tool with `contact = "volume"` has no proxy and takes none.
+    fn coupling(
+        &self,
+        raw: &RawTool,
+        contact: ToolContact,
+        k: usize,
+    ) -> Result<CouplingSpec, SceneError> {
+        let at = |key: &str| format!("tools[{k}].{key}");
+        let keys = [
+            (&raw.coupling_stiffness, "coupling_stiffness"),
+            (&raw.coupling_damping, "coupling_damping"),
+            (&raw.max_force, "max_force"),
+            (&raw.friction, "friction"),
+        ];
+        if contact == ToolContact::Volume {
+            if let Some((Some(v), name)) = keys.into_iter().find(|(v, _)| v.is_some()) {
+                return Err(self.invalid(
+                    v.span(),
+                    &at(name),
+                    "belongs to a tool's proxy; a tool with contact = \"volume\" has none (it \
+                     pushes with [volume_contact] pressure)",
+                ));
+            }
+            return Ok(CouplingSpec::default());
+        }
+        let stiffness = match &raw.coupling_stiffness {
+            Some(s) => {
+                Some(self.within(s, &at("coupling_stiffness"), (0.0, MAX_STIFFNESS), "N/m")?)
+            }
+            None => None,
+        };
+        let damping = match raw.coupling_damping.as_ref() {
+            Some(_) => Some(self.non_negative(
+                raw.coupling_damping.as_ref(),
+                &at("coupling_damping"),
+                0.0,
+            )?),
+            None => None,
+        };
+        let max_force = match &raw.max_force {
+            Some(f) => self.positive(f, &at("max_force"))?,
+            None => DEFAULT_MAX_FORCE,
+        };
+        let friction = self.non_negative(raw.friction.as_ref(), &at("friction"), 0.0)?;
+        Ok(CouplingSpec { stiffness, damping, max_force, friction })
+    }
+
     fn jaws(&self, j: &Spanned<RawJaws>, k: usize) -> Result<Jaws, SceneError> {
         let raw = j.get_ref();
         let at = |key: &str| format!("tools[{k}].jaws.{key}");
@@ -458,11 +571,11 @@ impl Checker<'_> {
                 Some(g) => self.within(g, &at("gripper"), (0.0, 3.2), "rad")?,
                 None => 0.0,
             };
-            let pose = Pose::new(position, rotation).map_err(|e| {
+            let pose = ToolPose::new(position, rotation, gripper).map_err(|e| {
                 let span = r.rotation.as_ref().map_or(r.position.span(), Spanned::span);
                 self.invalid(span, &at("rotation"), e.to_string())
             })?;
-            waypoints.push(Waypoint { time, pose: ToolPose { pose, gripper } });
+            waypoints.push(Waypoint { time, pose });
         }
         ToolPath::new(waypoints).map_err(|e| {
             self.invalid(

@@ -8,7 +8,7 @@
 //! and velocities, each corotational element's rotation (the warm start of the next
 //! extraction), the implicit integrator's warm start, the explicit integrators' previous
 //! positions and sub-step count, the adaptive tensor-mass's non-linear vertices, and each
-//! tool's pose, contact memory and grasp.
+//! tool's pose, its proxy's pose and its grasp.
 //!
 //! Some things a step keeps are built from the rotations of whichever step built them (the
 //! block-Jacobi blocks and the Cholesky factor of the implicit solve), or are sums whose bits
@@ -22,7 +22,7 @@ use crate::simulation::CutError;
 use incise_grid::GridEdit;
 use incise_math::Vec3;
 use incise_math::mat3::Mat3;
-use incise_tool::{ContactMemory, Grasp, ToolPose};
+use incise_tool::{Grasp, Pose, ToolPose};
 
 /// Simulated time between two keyframes (s).
 pub const KEYFRAME_INTERVAL_S: f64 = 1.0;
@@ -30,11 +30,11 @@ pub const KEYFRAME_INTERVAL_S: f64 = 1.0;
 /// One tool's part of a keyframe.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ToolState {
-    /// Its pose at the frame (`None`: it takes no part yet); the next frame's swept tests start
-    /// from it.
+    /// Its device's pose at the frame (`None`: it takes no part yet); the next frame's device
+    /// velocity starts from it.
     pub pose: Option<ToolPose>,
-    /// The push directions of its last contact.
-    pub memory: ContactMemory,
+    /// Its proxy's pose at the frame: where the next frame's proxy moves from.
+    pub proxy: Option<Pose>,
     /// Its jaws.
     pub grasp: Grasp,
 }

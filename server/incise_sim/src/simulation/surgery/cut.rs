@@ -20,6 +20,7 @@ use incise_grid::BranchedGrid;
 use incise_grid::hex8::shape;
 use incise_math::Vec3;
 use incise_mesh::TetTopology;
+use incise_tool::proxy::Facet;
 use incise_tool::volume_contact::ContactDevice;
 use incise_tool::{Pose, Shape, SweptBlade, flood};
 
@@ -299,6 +300,93 @@ pub fn links_crossed(
     links.sort_unstable();
     links.dedup();
     links
+}
+
+/// Whether `inner` moved from `from` to `to` holds a voxel's deformed centre at `to` that it did
+/// not hold at `from`: material it would have to cut before it can be there.
+pub fn holds_new_voxels(inner: &Shape, from: &Pose, to: &Pose, grid: &DeformedGrid) -> bool {
+    let holds = |pose: &Pose, c: Vec3| inner.distance(pose.tool_from_grid(c)).0 < 0.0;
+    let mut found = false;
+    grid.each_near(inner.grid_bounds(to), 0.0, |_, c, _| {
+        found = found || (holds(to, c) && !holds(from, c));
+    });
+    found
+}
+
+/// Whether a blade's mid-plane swept from `from` to `to` would cross a link that is not
+/// severed: material it would have to separate before it can be there.
+pub fn crosses_linked(
+    inner: &Shape,
+    from: &Pose,
+    to: &Pose,
+    grid: &DeformedGrid,
+    surface: &OrganSurface,
+    positions: &[Vec3],
+) -> bool {
+    let link = grid.grid.spacing().into_iter().fold(f64::INFINITY, f64::min);
+    SweptBlade::new(inner, from, to, link)
+        .is_some_and(|blade| !links_crossed(&blade, grid, surface, positions).is_empty())
+}
+
+/// The live tetrahedra under the boundary triangles `facets`: those with a face on one.
+pub fn tets_under(topology: &TetTopology, facets: &[Facet]) -> Vec<usize> {
+    if facets.is_empty() {
+        return Vec::new();
+    }
+    let mut faces: Vec<[u32; 3]> = facets
+        .iter()
+        .map(|f| {
+            let mut v = f.vertices;
+            v.sort_unstable();
+            v
+        })
+        .collect();
+    faces.sort_unstable();
+    (0..topology.tets().len())
+        .filter(|&t| topology.is_alive(t))
+        .filter(|&t| {
+            let v = topology.tets()[t];
+            (0..4).any(|skip| {
+                let mut face: Vec<u32> = (0..4).filter(|&i| i != skip).map(|i| v[i]).collect();
+                face.sort_unstable();
+                faces.binary_search(&[face[0], face[1], face[2]]).is_ok()
+            })
+        })
+        .collect()
+}
+
+/// The live tetrahedra whose deformed centroids lie in the box `(lo, hi)`, in id order.
+pub fn tets_near(topology: &TetTopology, x: &[Vec3], (lo, hi): (Vec3, Vec3)) -> Vec<usize> {
+    (0..topology.tets().len())
+        .filter(|&t| topology.is_alive(t))
+        .filter(|&t| {
+            let c = centroid(topology, x, t);
+            (0..3).all(|k| c[k] >= lo[k] && c[k] <= hi[k])
+        })
+        .collect()
+}
+
+/// Whether `inner` moved from `from` to `to` holds the deformed centroid of one of the live
+/// tetrahedra `among` at `to` that it did not hold at `from`.
+pub fn holds_new_tets(
+    inner: &Shape,
+    from: &Pose,
+    to: &Pose,
+    topology: &TetTopology,
+    x: &[Vec3],
+    among: &[usize],
+) -> bool {
+    let holds = |pose: &Pose, c: Vec3| inner.distance(pose.tool_from_grid(c)).0 < 0.0;
+    among.iter().any(|&t| {
+        let c = centroid(topology, x, t);
+        holds(to, c) && !holds(from, c)
+    })
+}
+
+/// The deformed centroid of tetrahedron `t`.
+fn centroid(topology: &TetTopology, x: &[Vec3], t: usize) -> Vec3 {
+    let v = &topology.tets()[t];
+    std::array::from_fn(|k| 0.25 * v.iter().map(|&i| x[i as usize][k]).sum::<f64>())
 }
 
 /// The live tetrahedra whose deformed centroids `inner` at `pose` contains. Sorted.

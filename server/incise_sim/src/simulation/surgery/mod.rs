@@ -1,15 +1,21 @@
-//! The surgical frame (Jeřábková 2010, §3; §4.1 for where its time goes): each step the posed
-//! tools push the organ's surface with their outer shapes (contact), cut with their inner
-//! shapes, and hold with their jaws; a cut updates the grid, the model and solver state, and the
-//! surface locally, in that order, within the step; then the mechanics is solved with the
-//! contact and grasp springs as force fields beside the tissue's, and each tool's force, torque
-//! and their linearisation in the pose are read from the springs at the new positions.
+//! The surgical frame (Jeřábková 2010, §3; §4.1 for where its time goes): each step every posed
+//! tool's proxy moves toward its device and stops on the deformed tissue (`incise_tool::proxy`),
+//! pushes the surface's triangles it touches with the coupling's spring, cuts with its inner
+//! shape once the push across that shape passes the tool's threshold (the proxy then moves into
+//! the space the cut opened), and holds with its jaws; a cut updates the grid, the model and
+//! solver state, and the surface locally, in that order, within the step; then the mechanics is
+//! solved with the proxies' and the jaws' springs as force fields beside the tissue's, and each
+//! tool's force, torque and their linearisation in the device's pose are read from the springs
+//! at the new positions.
 //!
 //! A tool that is given no pose (and has no scripted path) takes no part; one that stops being
 //! given poses stays where it was last put, as a hand that lets go of a haptic device leaves
-//! the instrument in place.
+//! the instrument in place. A tool first posed inside the tissue gets its proxy once its device
+//! is brought out: a proxy is never placed in tissue.
 
 mod cut;
+mod inside;
+mod proxy;
 mod surface;
 mod volume;
 
@@ -29,9 +35,10 @@ use incise_grid::GridEdit;
 use incise_math::Vec3;
 use incise_surface::{SurfaceChanges, SurfaceOptions};
 use incise_tool::{
-    Contact, ContactMemory, ContactSettings, Grasp, GraspEvent, Linearisation, Pose, Shape,
-    SweptBlade, ToolPose, detect,
+    ContactSettings, Coupling, Grasp, GraspEvent, Linearisation, Pose, Shape, SweptBlade, ToolPose,
+    proxy::{Facet, Touch},
 };
+use proxy::{Body, Cut, ProxyStep, TissueView};
 use std::ops::Range;
 use std::time::Instant;
 
@@ -97,12 +104,18 @@ pub struct ToolInput {
 /// What one tool did in a step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ToolFrame {
-    /// The pose it had this step (`None`: it takes no part yet).
+    /// Its device's pose this step (`None`: it takes no part yet).
     pub pose: Option<ToolPose>,
-    /// Surface points its outer shape pushes.
+    /// Its proxy's pose this step: where the tissue feels the tool (`None`: no proxy, for a tool
+    /// not posed yet, one whose device has been inside the tissue since it was first posed, or
+    /// one with `contact = "volume"`, which acts from its device's pose).
+    pub proxy: Option<Pose>,
+    /// Points where its proxy touches the surface's triangles (with `contact = "volume"`, see
+    /// `overlap_volume`).
     pub contact_points: usize,
-    /// Of those, points its motion swept over since the last step (carried, not tunnelled).
-    pub swept_points: usize,
+    /// The force its proxy pushed the tissue with across its inner shape at the step's start
+    /// (N): what its `cut_force` is compared with.
+    pub across_inner: f64,
     /// Points its jaws hold.
     pub held_points: usize,
     /// With `contact = "volume"`: the volume by which its mesh overlapped the tissue at the
@@ -163,16 +176,24 @@ pub(crate) struct ToolRig {
     spec: ToolSpec,
     outer: Shape,
     inner: Option<Shape>,
+    /// What its proxy's cuts remove and what stops it until they have: in a voxel scene that
+    /// removes, the inner shape grown by half a voxel, so that tissue it presses aside by a
+    /// little is still what it cuts (a blade thinner than a voxel would otherwise wedge the
+    /// voxels ahead apart and slip between them); otherwise the inner shape.
+    cutter: Option<Shape>,
+    /// Its device's pose.
     pose: Option<ToolPose>,
-    /// Its pose at the previous step, for the swept tests.
+    /// Its device's pose at the previous step: the device's velocity, a blade's sweep.
     previous: Option<Pose>,
-    /// Its contact's stiffness and damping (the damping resolved from the implicit step when
-    /// the tool names none).
+    /// Its proxy's pose.
+    proxy: Option<Pose>,
+    /// The penalty on tissue overlapping its proxy (the damping resolved from the implicit step
+    /// when the tool names none).
     contact: ContactSettings,
+    /// The coupling between its device and its proxy (likewise resolved).
+    coupling: Coupling,
     /// Its grasp's damping per point (N·s/m).
     grasp_damping: f64,
-    /// The push directions of its last contact.
-    memory: ContactMemory,
     grasp: Grasp,
     /// With `contact = "volume"`: its outer mesh in the tool frame (vertices, outward
     /// triangles), measured against the tissue by volume contact instead of point by point.
@@ -190,19 +211,51 @@ pub(crate) struct Surgery {
     volume: Option<VolumeContact>,
 }
 
+/// What the tools' defaults depend on: the scene's step and its tissue's nodes.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct ToolDefaults {
+    /// The implicit step (s; 0 with an explicit integrator).
+    pub(crate) implicit_dt: f64,
+    /// The model's mean node mass (kg).
+    pub(crate) node_mass: f64,
+    /// With an explicit integrator: the stiffest default coupling its step keeps stable on the
+    /// lightest node (N/m).
+    pub(crate) explicit_limit: Option<f64>,
+    /// In a voxel scene, the fine voxels' largest edge (m).
+    pub(crate) voxel: Option<f64>,
+}
+
+impl ToolDefaults {
+    /// A tool's coupling with the scene's defaults filled in.
+    fn coupling(&self, spec: &crate::config::CouplingSpec) -> Coupling {
+        let stiffness = spec.stiffness.unwrap_or_else(|| {
+            let limit = self.explicit_limit.unwrap_or(f64::INFINITY);
+            crate::config::DEFAULT_COUPLING_STIFFNESS.min(limit)
+        });
+        // Critical damping of the coupling spring against a node of the tissue: the tissue
+        // under a proxy that starts pushing it takes up the device's speed without ringing on
+        // the spring. An explicit step damps nothing it does not have to.
+        let damping = spec.damping.unwrap_or(if self.implicit_dt > 0.0 {
+            2.0 * (stiffness * self.node_mass).sqrt()
+        } else {
+            0.0
+        });
+        Coupling { stiffness, damping, max_force: spec.max_force, friction: spec.friction }
+    }
+}
+
 /// The springs of the step's tools: all of them as one field, and which belong to which tool.
 pub(crate) struct ToolSprings {
     pub(crate) field: EmbeddedSprings,
     ranges: Vec<Option<Range<usize>>>,
+    /// Where each tool's proxy touched the surface, and the triangles around it: what carries
+    /// the proxy after the step.
+    touches: Vec<(Vec<Touch>, Vec<Facet>)>,
 }
 
 impl Surgery {
-    /// After a re-mesh: the tools forget what they remembered of surface vertex slots it gave
-    /// to new vertices, and the volume contact notes the new walls.
+    /// After a re-mesh: the volume contact notes the new walls.
     fn surface_changed(&mut self, changes: &SurfaceChanges) {
-        for rig in &mut self.rigs {
-            rig.memory.forget(&changes.vertices_added);
-        }
         if let Some(volume) = &mut self.volume {
             volume.surface_changed(changes);
         }
@@ -223,10 +276,14 @@ impl Surgery {
         self.volume.as_ref()
     }
 
-    /// The tools of `tools` on `surface`, in a scene whose implicit step is `dt` (s; 0 for an
-    /// explicit integrator: the tools' default damping per unit of stiffness); refuses a shape
-    /// the scene reader did not load.
-    pub(crate) fn new(tools: &[ToolSpec], surface: OrganSurface, dt: f64) -> Result<Self, String> {
+    /// The tools of `tools` on `surface`, in a scene whose step and tissue `tissue` describes
+    /// (the tools' defaults); refuses a shape the scene reader did not load.
+    pub(crate) fn new(
+        tools: &[ToolSpec],
+        surface: OrganSurface,
+        tissue: &ToolDefaults,
+    ) -> Result<Self, String> {
+        let dt = tissue.implicit_dt;
         let shape = |s: &ShapeSpec, name: &str, which: &str| match s {
             ShapeSpec::Shape(shape) => Ok(shape.clone()),
             ShapeSpec::Mesh { path, .. } => Err(format!(
@@ -254,17 +311,29 @@ impl Surgery {
                     outer,
                     volume_mesh,
                     inner: t.inner.as_ref().map(|s| shape(s, &t.name, "inner")).transpose()?,
+                    cutter: match (&t.inner, t.cutting, tissue.voxel) {
+                        (Some(s), Cutting::Remove, Some(voxel)) => {
+                            Some(shape(s, &t.name, "inner")?.inflated(0.25 * voxel))
+                        }
+                        (Some(s), _, _) => Some(shape(s, &t.name, "inner")?),
+                        (None, _, _) => None,
+                    },
                     spec: t.clone(),
                     pose: None,
                     previous: None,
+                    proxy: None,
                     contact: ContactSettings {
-                        stiffness: t.stiffness,
+                        // An explicit step integrates the penalty as it does the coupling: no
+                        // stiffer than it keeps stable on the lightest node. The walls of a
+                        // voxel cut may start a voxel deep in the tool, and a stiffer penalty
+                        // would throw them out.
+                        stiffness: t.stiffness.min(tissue.explicit_limit.unwrap_or(f64::INFINITY)),
                         damping: t.damping.unwrap_or(dt * t.stiffness),
                     },
+                    coupling: tissue.coupling(&t.coupling),
                     grasp_damping: t
                         .damping
                         .unwrap_or_else(|| t.jaws.map_or(0.0, |j| dt * j.stiffness)),
-                    memory: ContactMemory::default(),
                     grasp: Grasp::default(),
                 })
             })
@@ -276,11 +345,7 @@ impl Surgery {
     pub(crate) fn tool_states(&self) -> Vec<ToolState> {
         self.rigs
             .iter()
-            .map(|rig| ToolState {
-                pose: rig.pose,
-                memory: rig.memory.clone(),
-                grasp: rig.grasp.clone(),
-            })
+            .map(|rig| ToolState { pose: rig.pose, proxy: rig.proxy, grasp: rig.grasp.clone() })
             .collect()
     }
 
@@ -292,7 +357,7 @@ impl Surgery {
         for (rig, state) in self.rigs.iter_mut().zip(tools) {
             // The next step moves `pose` to `previous` before it takes the new pose.
             rig.pose = state.pose;
-            rig.memory = state.memory.clone();
+            rig.proxy = state.proxy;
             rig.grasp = state.grasp.clone();
         }
         Ok(())
@@ -318,23 +383,13 @@ pub(crate) fn surface_options(
 }
 
 impl Simulation {
-    /// Checks this step's tool inputs before anything moves.
+    /// Checks this step's tool inputs before anything moves: each names a tool of the scene
+    /// (their poses were checked where they were made: a [`ToolPose`] cannot hold a bad one).
     pub(super) fn check_tools(&self, inputs: &StepInputs) -> Result<(), InputError> {
         let tools = self.surgery.as_ref().map_or(0, |s| s.tool_count());
         for (entry, input) in inputs.tools.iter().enumerate() {
             if input.tool >= tools {
                 return Err(InputError::NoSuchTool { entry, tool: input.tool, tools });
-            }
-            // `Pose::at` and `Pose::moved` build poses unchecked: a NaN from a device driver
-            // would otherwise drop the tool's contact for a frame and poison the next frame's
-            // swept test, with the state moved as if the tool had been withdrawn.
-            let (position, rotation) = (input.pose.pose.position(), input.pose.pose.rotation());
-            if !position.iter().chain(&rotation).all(|c| c.is_finite()) {
-                return Err(InputError::BadPose { entry, position, rotation });
-            }
-            let gripper = input.pose.gripper;
-            if !(gripper.is_finite() && gripper >= 0.0) {
-                return Err(InputError::BadGripper { entry, gripper });
             }
         }
         Ok(())
@@ -367,8 +422,10 @@ impl Simulation {
         surgery.deformed_at = None;
         let dt = self.config.dt();
         let now = self.index as f64 * dt;
+        for rig in &mut surgery.rigs {
+            rig.previous = rig.pose.map(|p| *p.pose());
+        }
         for (i, rig) in surgery.rigs.iter_mut().enumerate() {
-            rig.previous = rig.pose.map(|p| p.pose);
             let given = inputs.tools.iter().rev().find(|t| t.tool == i).map(|t| t.pose);
             let scripted = rig.spec.path.as_ref().map(|p| p.at(now));
             rig.pose = given.or(scripted).or(rig.pose);
@@ -378,13 +435,14 @@ impl Simulation {
             .iter()
             .map(|rig| ToolFrame {
                 pose: rig.pose,
+                proxy: None,
                 contact_points: 0,
-                swept_points: 0,
+                across_inner: 0.0,
                 held_points: 0,
                 overlap_volume: 0.0,
                 grasp: GraspEvent::None,
                 linearisation: Linearisation::none(
-                    rig.pose.map_or([0.0; 3], |p| p.pose.position()),
+                    rig.pose.map_or([0.0; 3], |p| p.pose().position()),
                 ),
             })
             .collect();
@@ -397,25 +455,40 @@ impl Simulation {
         counters.surface_ns += elapsed(t);
 
         let t = Instant::now();
-        let mut contacts = Self::contacts(surgery, dt);
+        let mut steps = self.step_proxies(surgery, None);
         let Surgery { rigs, surface, positions, .. } = &mut *surgery;
         for (i, rig) in rigs.iter_mut().enumerate() {
-            let (Some(pose), Some(jaws)) = (rig.pose, rig.spec.jaws) else { continue };
-            // A tool pushing by volume has no contact points: it touches where a surface point
-            // lies inside its mesh (from this step's positions alone, so that a keyframe
-            // restores what its jaws do).
-            let touching = !contacts[i].points.is_empty()
-                || (rig.volume_mesh.is_some()
-                    && holds_a_point(&rig.outer, &pose.pose, surface, positions));
+            let (Some(device), Some(jaws)) = (rig.pose, rig.spec.jaws) else { continue };
+            let Some(felt) = rig.felt_pose() else { continue };
+            // A tool pushing by volume has no proxy: it touches where a surface point lies
+            // inside its mesh (from this step's positions alone, so that a keyframe restores
+            // what its jaws do).
+            let touching = steps[i].as_ref().is_some_and(|s| !s.touches.is_empty())
+                || (!rig.has_proxy() && holds_a_point(&rig.outer, &felt, surface, positions));
             let points = surface.live_vertices().iter().map(|&v| (v, positions[v as usize]));
             frame.tools[i].grasp =
-                rig.grasp.update(&jaws, &pose.pose, pose.gripper, touching, points);
+                rig.grasp.update(&jaws, &felt, device.gripper(), touching, points);
         }
         counters.contact_ns += elapsed(t);
 
-        if self.cut_with_tools(surgery, counters, frame)? {
-            // The cut renumbered the nodes and moved the surface: find the contact again on the
-            // surface as it now is (the walls a cut opens inside the outer shape are pushed too).
+        let cut_step = std::cell::OnceCell::new();
+        let cuts: Vec<Option<Cut>> = surgery
+            .rigs
+            .iter()
+            .zip(&steps)
+            .map(|(rig, pushed)| {
+                let step = || *cut_step.get_or_init(|| self.cut_step(&surgery.surface));
+                rig.cut(pushed.as_ref(), &step)
+            })
+            .collect();
+        for (tool, step) in frame.tools.iter_mut().zip(&steps) {
+            tool.across_inner = step.as_ref().map_or(0.0, |s| s.push.across_inner);
+        }
+        let cut = self.cut_with_tools(surgery, &cuts, counters, frame)?;
+        if !cut.is_empty() {
+            // The cut renumbered the nodes and moved the surface: the proxies that cut move into
+            // the space they opened, and every proxy finds its touches again on the surface as
+            // it now is.
             let t = Instant::now();
             self.deform_surface(surgery);
             counters.surface_ns += elapsed(t);
@@ -424,26 +497,37 @@ impl Simulation {
             for rig in &mut surgery.rigs {
                 rig.grasp.retain(|v| surface.is_live(v));
             }
-            contacts = Self::contacts(surgery, dt);
+            let mut entered: Vec<Option<Pose>> = surgery.rigs.iter().map(|r| r.proxy).collect();
+            for (i, at) in cut {
+                surgery.rigs[i].enter_cut(&at);
+                entered[i] = surgery.rigs[i].proxy;
+            }
+            steps = self.step_proxies(surgery, Some(&entered));
             counters.contact_ns += elapsed(t);
         }
 
         let mut springs: Vec<EmbeddedSpring> = Vec::new();
         let mut ranges = Vec::with_capacity(surgery.rigs.len());
-        for (i, (rig, contact)) in surgery.rigs.iter_mut().zip(contacts).enumerate() {
-            rig.memory = ContactMemory::of(&contact);
-            let Some(pose) = rig.pose else {
+        let mut touches = Vec::with_capacity(surgery.rigs.len());
+        for (i, (rig, step)) in surgery.rigs.iter_mut().zip(steps).enumerate() {
+            frame.tools[i].proxy = if rig.has_proxy() { rig.proxy } else { None };
+            let (Some(_), Some(felt)) = (rig.pose, rig.felt_pose()) else {
                 ranges.push(None);
+                touches.push((Vec::new(), Vec::new()));
                 continue;
             };
             let start = springs.len();
-            frame.tools[i].contact_points = contact.points.len();
-            frame.tools[i].swept_points = contact.points.iter().filter(|c| c.swept).count();
-            springs.extend(contact.springs);
+            if let Some(step) = step {
+                frame.tools[i].contact_points = step.touches.len();
+                springs.extend(step.push.springs);
+                touches.push((step.touches, step.facets));
+            } else {
+                touches.push((Vec::new(), Vec::new()));
+            }
             if let Some(jaws) = &rig.spec.jaws {
                 let surface = &surgery.surface;
                 let previous = rig.previous.as_ref().map(|p| (p, self.config.dt()));
-                let held = rig.grasp.springs(jaws, &pose.pose, previous, rig.grasp_damping, |v| {
+                let held = rig.grasp.springs(jaws, &felt, previous, rig.grasp_damping, |v| {
                     surface.is_live(v).then(|| surface.embedding(v))
                 });
                 frame.tools[i].held_points = held.len();
@@ -453,16 +537,73 @@ impl Simulation {
         }
         counters.contact_points = springs.len();
         let exec = Executor::single_thread();
-        Ok(Some(ToolSprings { field: EmbeddedSprings::new(springs, exec), ranges }))
+        Ok(Some(ToolSprings { field: EmbeddedSprings::new(springs, exec), ranges, touches }))
+    }
+
+    /// Moves every posed tool's proxy (from `from`, each tool's, when given; from where it is
+    /// otherwise) and finds what it touches and pushes.
+    fn step_proxies(
+        &self,
+        surgery: &mut Surgery,
+        from: Option<&[Option<Pose>]>,
+    ) -> Vec<Option<ProxyStep>> {
+        let Surgery { rigs, surface, positions, .. } = surgery;
+        let by_grid_node = self.positions_by_grid_node();
+        let body = match (self.grid(), self.tet()) {
+            (Some(grid), _) => Body::Hex { grid, by_grid_node: &by_grid_node },
+            (None, Some(tet)) => Body::Tet { topology: &tet.topology, x: &self.state.x },
+            (None, None) => return rigs.iter().map(|_| None).collect(),
+        };
+        let view = TissueView { surface, positions, body };
+        let embedding = |v: u32| surface.embedding(v);
+        let dt = self.config.dt();
+        rigs.iter_mut()
+            .enumerate()
+            .map(|(i, rig)| {
+                let start = from.map_or(rig.proxy, |f| f[i]);
+                rig.step_proxy(&view, start, dt, &embedding)
+            })
+            .collect()
+    }
+
+    /// The step by which a tool's inner shape looks ahead of its outer shape's touch for
+    /// material to cut: a fine voxel's largest edge, or a tetrahedral surface's mean edge.
+    fn cut_step(&self, surface: &OrganSurface) -> f64 {
+        if let Some(grid) = self.grid() {
+            return grid.spacing().into_iter().fold(0.0, f64::max);
+        }
+        let positions = &self.state.x;
+        let (mut sum, mut count) = (0.0, 0usize);
+        for t in surface.triangle_slots().iter().filter(|t| t.alive) {
+            for e in 0..3 {
+                let (a, b) = (positions[t.v[e] as usize], positions[t.v[(e + 1) % 3] as usize]);
+                sum += (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+                count += 1;
+            }
+        }
+        if count == 0 { 0.0 } else { sum / count as f64 }
     }
 
     /// After the mechanics: each tool's force, torque and linearisation at the new positions.
-    pub(super) fn finish_tools(&self, springs: &ToolSprings, frame: &mut SurgicalFrame) {
+    /// The tissue that moved toward a proxy during the step carries it along.
+    pub(super) fn finish_tools(&mut self, springs: &ToolSprings, frame: &mut SurgicalFrame) {
         let all = springs.field.springs();
         for (tool, range) in frame.tools.iter_mut().zip(&springs.ranges) {
             if let (Some(pose), Some(range)) = (tool.pose, range) {
-                let (x, v, origin) = (&self.state.x, &self.state.v, pose.pose.position());
+                let (x, v, origin) = (&self.state.x, &self.state.v, pose.pose().position());
                 tool.linearisation = Linearisation::of(&all[range.clone()], x, v, origin);
+            }
+        }
+        let Some(surgery) = self.surgery.as_mut() else { return };
+        let x = &self.state.x;
+        let surface = &surgery.surface;
+        for ((rig, (touches, facets)), tool) in
+            surgery.rigs.iter_mut().zip(&springs.touches).zip(&mut frame.tools)
+        {
+            let now = |v: &[u32; 3]| v.map(|v| surface.embedding(v).position(x));
+            rig.carry(touches, facets, now);
+            if rig.has_proxy() {
+                tool.proxy = rig.proxy;
             }
         }
     }
@@ -480,7 +621,7 @@ impl Simulation {
             };
             let Some(pose) = tool.pose else { continue };
             let volume = region.volume_at(&self.state.x);
-            let origin = pose.pose.position();
+            let origin = pose.pose().position();
             let lin = Linearisation::of_overlap(
                 origin,
                 region.stiffness(),
@@ -521,7 +662,8 @@ impl Simulation {
                 .enumerate()
                 .filter_map(|(tool, rig)| {
                     let ((vertices, triangles), pose) = (rig.volume_mesh.as_ref()?, rig.pose?);
-                    let positions = vertices.iter().map(|&p| pose.pose.grid_from_tool(p)).collect();
+                    let positions =
+                        vertices.iter().map(|&p| pose.pose().grid_from_tool(p)).collect();
                     Some(PosedMesh { tool, positions, triangles })
                 })
                 .collect();
@@ -543,36 +685,18 @@ impl Simulation {
         step
     }
 
-    /// Each tool's contact (empty for a tool without a pose).
-    fn contacts(surgery: &Surgery, dt: f64) -> Vec<Contact> {
-        let Surgery { surface, positions, rigs, .. } = surgery;
-        let live = surface.live_vertices();
-        rigs.iter()
-            .map(|rig| {
-                let Some(pose) = rig.pose.filter(|_| rig.volume_mesh.is_none()) else {
-                    return Contact::default();
-                };
-                let previous = rig.previous.as_ref().map(|p| (p, dt));
-                detect(
-                    &rig.outer,
-                    &pose.pose,
-                    previous,
-                    &rig.memory,
-                    &rig.contact,
-                    live.iter().map(|&v| (v, positions[v as usize])),
-                    |v: u32| surface.embedding(v),
-                )
-            })
-            .collect()
-    }
-
-    /// Finds what each cutting tool cuts and cuts it; returns whether anything was cut.
+    /// Cuts with each tool that cuts this step, as `cuts` says; returns the tools that cut
+    /// something and the poses they cut at.
     fn cut_with_tools(
         &mut self,
         surgery: &mut Surgery,
+        cuts: &[Option<Cut>],
         counters: &mut StageCounters,
         frame: &mut SurgicalFrame,
-    ) -> Result<bool, CutError> {
+    ) -> Result<Vec<(usize, Pose)>, CutError> {
+        if cuts.iter().all(Option::is_none) {
+            return Ok(Vec::new());
+        }
         let t = Instant::now();
         let mut edit = GridEdit::default();
         let mut tets: Vec<usize> = Vec::new();
@@ -580,46 +704,59 @@ impl Simulation {
         let scattered = self.grid().map(|_| self.positions_by_grid_node());
         let Surgery { rigs, surface, positions, volume, .. } = &mut *surgery;
         let mut mismatches = 0;
-        for (i, rig) in rigs.iter().enumerate() {
-            let (Some(pose), Some(inner)) = (rig.pose, rig.inner.as_ref()) else { continue };
-            let mut event = CutEvent { tool: i, ..CutEvent::default() };
-            match (rig.spec.cutting, self.grid(), &scattered) {
-                (Cutting::Off, ..) => continue,
-                (Cutting::Remove, Some(grid), Some(by_grid_node)) => {
-                    let deformed = DeformedGrid { grid, by_grid_node };
-                    let marker = volume.as_mut().and_then(|v| v.marker(&mut mismatches));
-                    let voxels = cut::voxels_inside(
-                        inner, &pose.pose, &deformed, surface, positions, marker,
-                    );
-                    event.voxels_removed = voxels.len();
-                    edit.remove_voxels.extend(voxels);
+        let mut entered: Vec<(usize, Pose)> = Vec::new();
+        for (i, (rig, cut)) in rigs.iter().zip(cuts).enumerate() {
+            let (Some(Cut { from, ahead, pressed }), Some(inner)) = (cut, rig.inner.as_ref())
+            else {
+                continue;
+            };
+            for at in ahead {
+                let mut event = CutEvent { tool: i, ..CutEvent::default() };
+                match (rig.spec.cutting, self.grid(), &scattered) {
+                    (Cutting::Off, ..) => break,
+                    (Cutting::Remove, Some(grid), Some(by_grid_node)) => {
+                        let deformed = DeformedGrid { grid, by_grid_node };
+                        let marker = volume.as_mut().and_then(|v| v.marker(&mut mismatches));
+                        let cutter = rig.cutter.as_ref().unwrap_or(inner);
+                        let voxels =
+                            cut::voxels_inside(cutter, at, &deformed, surface, positions, marker);
+                        event.voxels_removed = voxels.len();
+                        edit.remove_voxels.extend(voxels);
+                    }
+                    (Cutting::Separate, Some(grid), Some(by_grid_node)) => {
+                        let deformed = DeformedGrid { grid, by_grid_node };
+                        let link = grid.spacing().into_iter().fold(f64::INFINITY, f64::min);
+                        let Some(blade) = SweptBlade::new(inner, from, at, link) else {
+                            continue;
+                        };
+                        let links = cut::links_crossed(&blade, &deformed, surface, positions);
+                        event.links_severed = links.len();
+                        edit.sever_links.extend(links);
+                    }
+                    (_, None, _) | (_, _, None) => {
+                        let Some(tet) = self.tet() else { break };
+                        let mut found = cut::tets_inside(inner, at, &tet.topology, &self.state.x);
+                        let facets: Vec<_> = pressed.iter().map(|p| p.0).collect();
+                        found.extend(cut::tets_under(&tet.topology, &facets));
+                        found.sort_unstable();
+                        found.dedup();
+                        event.tets_removed = found.len();
+                        tets.extend(found);
+                    }
                 }
-                (Cutting::Separate, Some(grid), Some(by_grid_node)) => {
-                    let deformed = DeformedGrid { grid, by_grid_node };
-                    let from = rig.previous.unwrap_or(pose.pose);
-                    let link = grid.spacing().into_iter().fold(f64::INFINITY, f64::min);
-                    let Some(blade) = SweptBlade::new(inner, &from, &pose.pose, link) else {
-                        continue;
-                    };
-                    let links = cut::links_crossed(&blade, &deformed, surface, positions);
-                    event.links_severed = links.len();
-                    edit.sever_links.extend(links);
+                if event != (CutEvent { tool: i, ..CutEvent::default() }) {
+                    events.push(event);
+                    if rig.has_proxy() {
+                        entered.push((i, *at));
+                    }
+                    break;
                 }
-                (_, None, _) | (_, _, None) => {
-                    let Some(tet) = self.tet() else { continue };
-                    let found = cut::tets_inside(inner, &pose.pose, &tet.topology, &self.state.x);
-                    event.tets_removed = found.len();
-                    tets.extend(found);
-                }
-            }
-            if event != (CutEvent { tool: i, ..CutEvent::default() }) {
-                events.push(event);
             }
         }
         counters.cut_ns += elapsed(t);
         counters.gpu_cpu_cut_mismatches += mismatches;
         if events.is_empty() {
-            return Ok(false);
+            return Ok(Vec::new());
         }
         edit.remove_voxels.sort_unstable();
         edit.remove_voxels.dedup();
@@ -657,7 +794,7 @@ impl Simulation {
         if changes.is_some() {
             frame.edit = edit;
         }
-        Ok(true)
+        Ok(entered)
     }
 
     /// The organ's surface (scenes with tools; [`Simulation::enable_surface`] builds it in
@@ -685,8 +822,10 @@ impl Simulation {
             ),
             super::Body::Tet(tet) => OrganSurface::tetrahedra(&tet.topology),
         };
-        self.surgery =
-            Some(Box::new(Surgery::new(&[], surface, 0.0).expect("no tools: nothing to load")));
+        self.surgery = Some(Box::new(
+            Surgery::new(&[], surface, &ToolDefaults::default())
+                .expect("no tools: nothing to load"),
+        ));
     }
 
     /// The deformed position of every surface vertex slot now (dead slots hold anything), for

@@ -12,6 +12,7 @@ use incise_grid::{BranchedGrid, GridChanges};
 use incise_math::Vec3;
 use incise_mesh::TetTopology;
 use incise_surface::{Surface, SurfaceChanges, SurfaceMapping, SurfaceOptions, TetSurface};
+use incise_tool::proxy::Facet;
 
 /// The surface of a scene's organ.
 pub enum OrganSurface {
@@ -235,6 +236,60 @@ impl OrganSurface {
             }
             Self::Tetrahedra { .. } => x.to_vec(),
         }
+    }
+
+    /// The live triangles that may meet the box `(lo, hi)`, with their corners at `positions`
+    /// (deformed, by vertex slot), appended to `out` in triangle-id order.
+    ///
+    /// A voxel surface finds them from its vertices: those within a few voxels of the box
+    /// (three edges of the largest voxel: a triangle spans at most two voxel edges at rest, and
+    /// tissue stretched beyond half as much again is torn long before) name their owner voxels,
+    /// whose cubes hold every triangle around them. A tetrahedral surface is small enough to be
+    /// scanned.
+    pub fn facets_near(&self, positions: &[Vec3], (lo, hi): (Vec3, Vec3), out: &mut Vec<Facet>) {
+        let start = out.len();
+        let meets = |t: &[Vec3; 3]| {
+            (0..3).all(|k| {
+                let (a, b) = t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                    (a.min(p[k]), b.max(p[k]))
+                });
+                b >= lo[k] && a <= hi[k]
+            })
+        };
+        let mut push = |id: u32, t: &incise_surface::Triangle| {
+            let corners = t.v.map(|v| positions[v as usize]);
+            if meets(&corners) {
+                out.push(Facet { id, vertices: t.v, corners });
+            }
+        };
+        match self {
+            Self::Voxels { surface, live, .. } => {
+                let reach = 3.0 * surface.spacing().into_iter().fold(0.0, f64::max);
+                let near =
+                    |p: &Vec3| (0..3).all(|k| p[k] >= lo[k] - reach && p[k] <= hi[k] + reach);
+                let vertices = surface.vertices();
+                let mut cubes: Vec<u32> = live
+                    .iter()
+                    .filter(|&&v| near(&positions[v as usize]))
+                    .flat_map(|&v| surface.cubes_of_voxel(vertices[v as usize].voxel))
+                    .collect();
+                cubes.sort_unstable();
+                cubes.dedup();
+                let triangles = surface.triangles();
+                let mut ids: Vec<u32> =
+                    cubes.iter().flat_map(|&c| surface.cube_triangles(c)).collect();
+                ids.sort_unstable();
+                for id in ids {
+                    push(id, &triangles[id as usize]);
+                }
+            }
+            Self::Tetrahedra { surface, .. } => {
+                for (id, t) in surface.live_triangles() {
+                    push(id, t);
+                }
+            }
+        }
+        debug_assert!(out[start..].windows(2).all(|w| w[0].id < w[1].id));
     }
 
     /// The voxel that owns vertex `v` (`None` on a tetrahedral surface).

@@ -159,7 +159,22 @@ impl Search<'_> {
     }
 }
 
-fn branch_and_bound(shape: &Shape, t: &[Vec3; 3]) -> Gap {
+/// Whether [`triangle_gap`]`(shape, t).distance >= floor`, the same answer found with fewer
+/// evaluations where it is decided early: the least sample only falls, and no sample falls
+/// below the least bound still queued.
+#[must_use]
+pub fn gap_at_least(shape: &Shape, t: &[Vec3; 3], floor: f64) -> bool {
+    match shape.primitive() {
+        Some(Primitive::Sphere { .. } | Primitive::Capsule { .. }) => {
+            triangle_gap(shape, t).distance >= floor
+        }
+        _ => search(shape, t, Some(floor)).best.0 >= floor,
+    }
+}
+
+/// The branch and bound over triangle `t`; with a `floor`, stopped once the least distance is
+/// known to be below it or not.
+fn search<'a>(shape: &'a Shape, t: &'a [Vec3; 3], floor: Option<f64>) -> Search<'a> {
     let corners = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     let mut search = Search {
         shape,
@@ -176,6 +191,9 @@ fn branch_and_bound(shape: &Shape, t: &[Vec3; 3]) -> Gap {
         if bound >= search.best.0 - RESOLUTION || search.evaluations >= MAX_EVALUATIONS {
             break;
         }
+        if floor.is_some_and(|f| search.best.0 < f || bound >= f) {
+            break;
+        }
         let mid =
             |p: [f64; 3], q: [f64; 3]| -> [f64; 3] { std::array::from_fn(|k| 0.5 * (p[k] + q[k])) };
         let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
@@ -186,7 +204,11 @@ fn branch_and_bound(shape: &Shape, t: &[Vec3; 3]) -> Gap {
             search.consider(child);
         }
     }
-    let (distance, bary) = search.best;
+    search
+}
+
+fn branch_and_bound(shape: &Shape, t: &[Vec3; 3]) -> Gap {
+    let (distance, bary) = search(shape, t, None).best;
     let normal = shape.distance(at_bary(t, bary)).1;
     // A shape's distance always has a unit gradient; a degenerate one falls back to pushing the
     // triangle along its own outward normal.

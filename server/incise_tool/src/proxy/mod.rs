@@ -20,6 +20,6 @@ pub mod gap;
 pub mod motion;
 pub mod push;
 
-pub use gap::{Gap, Reach, surely_at_least, triangle_gap};
+pub use gap::{Gap, Reach, gap_at_least, surely_at_least, triangle_gap};
 pub use motion::{Facet, Motion, Obstacles, PENETRATION_TOLERANCE, advance, place, slide, travel};
 pub use push::{ContactSettings, Coupling, Push, Touch, push, touches};

@@ -32,7 +32,7 @@
 //! what the tangential offset exceeds `μ` times the depth of the device behind the constraint:
 //! the friction cone of the coupling force.
 
-use super::gap::{Reach, surely_at_least, triangle_gap};
+use super::gap::{Reach, gap_at_least, surely_at_least, triangle_gap};
 use crate::geometry::{norm, sub};
 use crate::pose::Pose;
 use crate::shape::Shape;
@@ -184,7 +184,7 @@ impl<'a> Rules<'a> {
                 }
                 let t = f.corners.map(|p| pose.tool_from_grid(p));
                 surely_at_least(self.shape, &t, floor, &self.reach)
-                    || triangle_gap(self.shape, &t).distance >= floor
+                    || gap_at_least(self.shape, &t, floor)
             },
         )
     }

@@ -313,6 +313,36 @@ pub fn holds_new_voxels(inner: &Shape, from: &Pose, to: &Pose, grid: &DeformedGr
     found
 }
 
+/// The deformed centres of the voxels in `bounds`, looked up once for many tests of
+/// [`VoxelCentres::holds_new`] (sorted along x, so that a test scans only its shape's slab).
+pub struct VoxelCentres {
+    centres: Vec<Vec3>,
+    /// The region they were looked up in.
+    pub bounds: (Vec3, Vec3),
+}
+
+impl VoxelCentres {
+    /// The voxels of `grid` whose deformed centres lie in `bounds`.
+    pub fn near(grid: &DeformedGrid, bounds: (Vec3, Vec3)) -> Self {
+        let mut centres = Vec::new();
+        grid.each_near(bounds, 0.0, |_, c, _| centres.push(c));
+        centres.sort_by(|a, b| a[0].total_cmp(&b[0]));
+        Self { centres, bounds }
+    }
+
+    /// [`holds_new_voxels`] for a pose `to` whose shape lies within the bounds.
+    pub fn holds_new(&self, inner: &Shape, from: &Pose, to: &Pose) -> bool {
+        let holds = |pose: &Pose, c: Vec3| inner.distance(pose.tool_from_grid(c)).0 < 0.0;
+        let (lo, hi) = inner.grid_bounds(to);
+        let first = self.centres.partition_point(|c| c[0] < lo[0]);
+        self.centres[first..]
+            .iter()
+            .take_while(|c| c[0] <= hi[0])
+            .filter(|c| (1..3).all(|k| c[k] >= lo[k] && c[k] <= hi[k]))
+            .any(|&c| holds(to, c) && !holds(from, c))
+    }
+}
+
 /// Whether a blade's mid-plane swept from `from` to `to` would cross a link that is not
 /// severed: material it would have to separate before it can be there.
 pub fn crosses_linked(

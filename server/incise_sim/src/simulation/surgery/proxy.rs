@@ -148,7 +148,23 @@ impl ToolRig {
                 }
                 _ => Vec::new(),
             };
-            let uncut = |a: &Pose, b: &Pose| self.uncut(view, &reachable, a, b);
+            // A voxel cutter's voxels, looked up once for every pose the motion tries: each
+            // lies within the device's distance from the start of the device, the slides
+            // included. A pose outside that reach looks afresh.
+            let voxels = self.cutter.as_ref().filter(|_| self.cuts()).and_then(|inner| {
+                let Body::Hex { grid, by_grid_node } = &view.body else { return None };
+                if self.spec.cutting != Cutting::Remove {
+                    return None;
+                }
+                let bounds = region(inner, &[&start, &device], 0.0);
+                Some(cut::VoxelCentres::near(&DeformedGrid { grid, by_grid_node }, bounds))
+            });
+            let uncut = |a: &Pose, b: &Pose| match (&voxels, &self.cutter) {
+                (Some(voxels), Some(inner)) if within(inner.grid_bounds(b), voxels.bounds) => {
+                    voxels.holds_new(inner, a, b)
+                }
+                _ => self.uncut(view, &reachable, a, b),
+            };
             let cuts = self.cuts();
             let obstacles = Obstacles {
                 facets: &facets,

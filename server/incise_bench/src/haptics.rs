@@ -19,12 +19,13 @@
 //!
 //! `--transport both` (the default) runs it once per transport, each against a fresh server.
 
-use anyhow::{Context, bail};
+use crate::role::{Role, free_port};
+use anyhow::Context;
 use incise_client::drive::drive;
 use incise_client::{Client, Keys, TransportKind};
 use incise_server::server::{self, Options};
 use incise_transport::zenoh_link::Endpoints;
-use std::io::{BufRead, BufReader, Read};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -245,54 +246,6 @@ fn print_run(run: &serde_json::Value) {
             energy,
             100.0 * energy / work.max(f64::MIN_POSITIVE),
         );
-    }
-}
-
-fn free_port() -> anyhow::Result<u16> {
-    Ok(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
-}
-
-/// A role of this program in a process of its own, ready (it printed `ready`); it stops when
-/// its standard input closes ([`Role::finish`]) or when dropped (killed).
-struct Role {
-    child: std::process::Child,
-    lines: BufReader<std::process::ChildStdout>,
-}
-
-impl Role {
-    fn start(exe: &Path, args: &[String]) -> anyhow::Result<Self> {
-        let mut child = Command::new(exe)
-            .args(args)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()?;
-        let mut lines = BufReader::new(child.stdout.take().expect("piped"));
-        let mut line = String::new();
-        lines.read_line(&mut line)?;
-        if line.trim() != "ready" {
-            let _ = child.kill();
-            bail!("the {} did not start: {line}", args[0]);
-        }
-        Ok(Self { child, lines })
-    }
-
-    /// Closes its input and returns everything it printed after `ready`.
-    fn finish(mut self) -> anyhow::Result<String> {
-        drop(self.child.stdin.take());
-        let mut rest = String::new();
-        self.lines.read_to_string(&mut rest)?;
-        self.child.wait()?;
-        Ok(rest)
-    }
-}
-
-impl Drop for Role {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
     }
 }
 

@@ -17,13 +17,14 @@
 //! router, plus `scenes`, `via_router` and each scene's p99); the floor is N echo servers
 //! behind the same router.
 
+use crate::role::{Role, free_port};
 use anyhow::{Context, bail};
 use incise_client::drive::{RoundTrips, drive};
 use incise_client::script::Script;
 use incise_client::{Client, Keys, TransportKind};
 use incise_server::server::{self, Options};
 use incise_transport::zenoh_link::Endpoints;
-use std::io::{BufRead, BufReader, Read};
+use std::io::Read;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -170,10 +171,6 @@ pub struct ClientRole {
 /// A half turn about x: the tool's +z (its blade, from the edge at its origin) points down
 /// the grid's −z, so the edge leads upwards.
 const BLADE_UP: [f64; 4] = [0.0, 1.0, 0.0, 0.0];
-
-fn free_port() -> anyhow::Result<u16> {
-    Ok(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
-}
 
 /// Runs the report.
 pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
@@ -387,50 +384,6 @@ fn pooled(clients: &[serde_json::Value]) -> anyhow::Result<Pooled> {
         p.max_force_n = p.max_force_n.max(c["max_force_n"].as_f64().unwrap_or(0.0));
     }
     Ok(p)
-}
-
-/// A role of this program in a process of its own, ready (it printed `ready`); it stops when
-/// its standard input closes ([`Role::finish`]) or when dropped (killed).
-struct Role {
-    child: std::process::Child,
-    lines: BufReader<std::process::ChildStdout>,
-}
-
-impl Role {
-    fn start(exe: &std::path::Path, args: &[String]) -> anyhow::Result<Self> {
-        let mut child = Command::new(exe)
-            .args(args)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()?;
-        let mut lines = BufReader::new(child.stdout.take().expect("piped"));
-        let mut line = String::new();
-        lines.read_line(&mut line)?;
-        if line.trim() != "ready" {
-            let _ = child.kill();
-            bail!("the {} did not start: {line}", args[0]);
-        }
-        Ok(Self { child, lines })
-    }
-
-    /// Closes its input and returns everything it printed after `ready`.
-    fn finish(mut self) -> anyhow::Result<String> {
-        drop(self.child.stdin.take());
-        let mut rest = String::new();
-        self.lines.read_to_string(&mut rest)?;
-        self.child.wait()?;
-        Ok(rest)
-    }
-}
-
-impl Drop for Role {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
 }
 
 /// Starts this program in each server role of `servers`, runs `during`, then stops them and

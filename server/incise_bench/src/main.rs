@@ -10,6 +10,7 @@ mod ldi;
 mod peers;
 mod plot;
 mod progress;
+mod role;
 mod speed_error;
 mod stroke;
 mod tensor_mass;

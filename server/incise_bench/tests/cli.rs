@@ -658,13 +658,16 @@ fn haptics_report_json_has_the_contract_keys() {
             }
             let force = tool["max_force_n"].as_f64().unwrap();
             assert!(force > 0.0 && force <= 8.0 + 1e-9, "{tool}");
-            // The proxy's outer shape against the deformed surface: within a tenth of a
-            // millimetre for the grasper. The scalpel's proxy rests in its own cut, whose walls
-            // (whole voxels) reach into its outer shape, and the measure counts them.
+            // The proxy's outer shape against the deformed surface, over the sweep, the jab and
+            // the cycles as the server ran them: the grasper's stays on the organ, within a
+            // tenth of its 2.5 mm voxels (a tool that slipped in would be millimetres deep; the
+            // tenth of a millimetre of the depth sweep alone is the hard-case suite's). The
+            // scalpel's proxy rests in its own cut, whose walls (whole voxels) reach into its
+            // outer shape, and the measure counts them.
             let depth = tool["max_penetration_mm"].as_f64().unwrap();
             assert!(depth >= 0.0, "{tool}");
             if tool["name"] == "grasper" {
-                assert!(depth < 0.1, "{tool}");
+                assert!(depth < 0.25, "{tool}");
             }
             let (energy, work) = (
                 tool["cycles_energy_j"].as_f64().unwrap(),

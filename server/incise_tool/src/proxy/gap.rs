@@ -61,6 +61,18 @@ pub fn triangle_gap(shape: &Shape, t: &[Vec3; 3]) -> Gap {
 /// from one evaluation at the triangle's centroid: `φ(c) − R ≥ bound`. False says nothing.
 #[must_use]
 pub fn surely_at_least(shape: &Shape, t: &[Vec3; 3], bound: f64, reach: &Reach) -> bool {
+    // The shape lies within its bounding box, so its distance is at least the box's, which is
+    // at least how far a point lies beyond any one of the box's face planes: a triangle wholly
+    // beyond one (one lying flush on a face included) is as far as its nearest corner there.
+    let (lo, hi) = (reach.lo, reach.hi);
+    for k in 0..3 {
+        let (least, most) = t
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p[k]), b.max(p[k])));
+        if least - hi[k] >= bound || lo[k] - most >= bound {
+            return true;
+        }
+    }
     let c = at_bary(t, [1.0 / 3.0; 3]);
     let r = t.iter().map(|&p| norm(sub(p, c))).fold(0.0, f64::max);
     // The shape lies within its bounding ball: nothing further needs its distance.
@@ -70,13 +82,18 @@ pub fn surely_at_least(shape: &Shape, t: &[Vec3; 3], bound: f64, reach: &Reach) 
     shape.distance(c).0 - r >= bound
 }
 
-/// A shape's bounding ball in the tool frame: a first test that needs no distance evaluation.
+/// A shape's bounding ball and box in the tool frame: first tests that need no distance
+/// evaluation.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Reach {
     /// Its centre (tool frame).
     pub centre: Vec3,
     /// Its radius (m).
     pub radius: f64,
+    /// The shape's bounding box in the tool frame (m).
+    pub lo: Vec3,
+    /// Its upper corner (m).
+    pub hi: Vec3,
 }
 
 impl Reach {
@@ -85,7 +102,7 @@ impl Reach {
     pub fn of(shape: &Shape) -> Self {
         let (lo, hi) = shape.bounds();
         let centre = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
-        Self { centre, radius: 0.5 * norm(sub(hi, lo)) }
+        Self { centre, radius: 0.5 * norm(sub(hi, lo)), lo, hi }
     }
 }
 

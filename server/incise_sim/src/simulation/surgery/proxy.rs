@@ -148,9 +148,8 @@ impl ToolRig {
                 }
                 _ => Vec::new(),
             };
-            // A voxel cutter's voxels, looked up once for every pose the motion tries: each
-            // lies within the device's distance from the start of the device, the slides
-            // included. A pose outside that reach looks afresh.
+            // A voxel cutter's voxels, looked up once for the poses the motion tries between
+            // the step's start and the device; a pose a slide takes beyond them looks afresh.
             let voxels = self.cutter.as_ref().filter(|_| self.cuts()).and_then(|inner| {
                 let Body::Hex { grid, by_grid_node } = &view.body else { return None };
                 if self.spec.cutting != Cutting::Remove {

@@ -3,11 +3,12 @@
 //! process (`haptics-client`) drives each of its tools in turn at 1 kHz over iceoryx2 or zenoh,
 //! through three tests on the organ's top:
 //!
-//! - **depth sweep**: down at 2 cm/s until the tissue first pushes back, on at `--speed` mm/s to
-//!   `--depth` mm past that, and back;
-//! - **jab**: the device jumps 5 cm into the organ in one pose, stays 0.3 s, and jumps out;
-//! - **cycles**: `--cycles` presses 5 mm in, each 100 ms in, 50 ms held, 100 ms out and 50 ms
-//!   clear.
+//! - **depth sweep**: down at [`APPROACH_SPEED`] until the tissue first pushes back, on at
+//!   `--speed` mm/s to `--depth` mm past that, and back;
+//! - **jab**: the device jumps [`JAB_DEPTH`] into the organ in one pose, stays [`JAB_HOLD`],
+//!   and jumps out;
+//! - **cycles**: `--cycles` presses [`CYCLE_DEPTH`] in, each in, held, out and clear for the
+//!   times of [`CYCLE`].
 //!
 //! The client logs the force in effect at each of its ticks and the pose it sent there: the
 //! largest change of force between two ticks (what the hand feels as a step) and the energy the
@@ -253,22 +254,18 @@ fn print_run(run: &serde_json::Value) {
 /// input closes; then prints its haptic tick's cost and where the recording is, as one JSON
 /// line.
 pub fn serve(role: &ServerRole) -> anyhow::Result<()> {
-    let (scene, file, toml) = match &role.scene {
-        Some(path) => {
-            (incise_scene::read_scene(path.as_ref())?, path.clone(), std::fs::read_to_string(path)?)
-        }
-        None => (
-            incise_scene::scene_from_toml(incise_scene::DEMO_SCENE, "demo", Path::new("."))?,
-            "demo".to_owned(),
-            incise_scene::DEMO_SCENE.to_owned(),
+    let path = role.scene.as_deref().map(Path::new);
+    let scene = incise_server::scene::load(path)?;
+    let (file, toml, scene_files) = match path {
+        Some(path) => (
+            path.display().to_string(),
+            std::fs::read_to_string(path)?,
+            incise_server::scene::stored_files(
+                &scene.config,
+                path.parent().unwrap_or(Path::new(".")),
+            ),
         ),
-    };
-    let scene_files = match &role.scene {
-        Some(path) => incise_server::scene::stored_files(
-            &scene.config,
-            Path::new(path).parent().unwrap_or(Path::new(".")),
-        ),
-        None => Vec::new(),
+        None => ("demo".to_owned(), incise_scene::DEMO_SCENE.to_owned(), Vec::new()),
     };
     let options = Options {
         name: Some(role.name.clone()),

@@ -443,8 +443,8 @@ impl HapticLoop {
     }
 }
 
-/// Durations in a fixed histogram of 1 µs buckets up to 10 ms (the last bucket holds
-/// everything beyond): the period's jitter, an update's cost.
+/// Durations in a fixed histogram of `JITTER_BUCKETS` buckets of a microsecond (the last
+/// holds everything beyond): the period's jitter, an update's cost.
 #[derive(Debug)]
 pub struct Histogram {
     buckets: Box<[AtomicU64]>,
@@ -679,8 +679,8 @@ mod tests {
     #[test]
     fn the_thread_answers_poses_and_fades_when_they_stop() {
         // Staleness is measured on the wall clock: a test thread descheduled for longer than
-        // the default 10 ms between two poses (a loaded machine) would see the answer to the
-        // next one fading. Half a second keeps every answer whole; the fade is checked after it.
+        // the default staleness window between two poses (a loaded machine) would see the
+        // answer to the next one fading. Half a second keeps every answer whole; the fade is checked after it.
         let settings = HapticSettings {
             max_force_rate_n_per_s: 1e9,
             stale_after_ms: 500.0,

@@ -62,6 +62,20 @@ pub fn dot(a: &Vec3, b: &Vec3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+/// Difference `a − b`.
+#[inline]
+#[must_use]
+pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// Euclidean length `|a|`.
+#[inline]
+#[must_use]
+pub fn norm(a: Vec3) -> f64 {
+    dot(&a, &a).sqrt()
+}
+
 /// Rotation by `angle` (rad) about the unit `axis` (Rodrigues).
 #[must_use]
 pub fn axis_angle(axis: &Vec3, angle: f64) -> Mat3 {

@@ -272,7 +272,7 @@ fn adaptive_tensor_mass_with_cutting_restores_bit_for_bit() {
 #[test]
 fn explicit_tensor_mass_restores_bit_for_bit() {
     // Central differences keep the previous positions. The explicit step well within the mesh's
-    // stable step at rest (9.6e-4 s): the scalpel's proxy, held on the surface 7 mm above its
+    // stable step at rest (`Simulation::explicit_stable_dt`): the scalpel's proxy, held on the surface 7 mm above its
     // device, presses one coarse node hard enough that the stretched St Venant-Kirchhoff
     // elements around it stiffen, and a step near the rest limit diverges. The tools' springs
     // soft enough for the step (the couplings' default with an explicit step is as stiff as it

@@ -3,16 +3,7 @@
 
 use incise_math::Vec3;
 use incise_math::mat3::{cross, dot};
-
-/// `a − b`.
-pub(crate) fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-/// `|a|`.
-pub(crate) fn norm(a: Vec3) -> f64 {
-    dot(&a, &a).sqrt()
-}
+pub(crate) use incise_math::mat3::{norm, sub};
 
 /// `a / |a|`, or `a` itself when it is zero.
 pub(crate) fn unit(a: Vec3) -> Vec3 {

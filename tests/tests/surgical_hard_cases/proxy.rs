@@ -2,10 +2,11 @@
 //! pressed and released many times stays outside the tissue, pushes back harder the deeper its
 //! device goes, and gives the hand no energy.
 
+use super::{DOWN_G, block, config, input};
 use incise_math::Vec3;
-use incise_sim::{Frame, SceneConfig, Simulation, StepInputs, ToolInput};
+use incise_sim::{Frame, SceneConfig, Simulation, StepInputs};
 use incise_tool::proxy::triangle_gap;
-use incise_tool::{Pose, Shape, ToolPose};
+use incise_tool::{Pose, Shape};
 
 /// The embedded demo scene's organ, with its two tools.
 fn demo() -> Simulation {
@@ -18,8 +19,7 @@ fn demo() -> Simulation {
 const OPEN: f64 = 1.0;
 
 fn posed(tool: usize, position: Vec3, rotation: [f64; 4], gripper: f64) -> StepInputs {
-    let pose = ToolPose::new(position, rotation, gripper).unwrap();
-    StepInputs { tools: vec![ToolInput { tool, pose }], ..StepInputs::default() }
+    StepInputs { tools: vec![input(tool, position, rotation, gripper)], ..StepInputs::default() }
 }
 
 /// The least signed distance between `shape` at `pose` and the organ's surface as it is now
@@ -393,33 +393,7 @@ impl Hand {
 #[test]
 fn a_tool_pulled_in_by_an_8_n_spring_presses_and_enters_only_by_cutting() {
     let dt = 1e-3;
-    let cube = |tools: &str| {
-        let text = format!(
-            "name = \"hand\"
-level = 2
-gravity = [0.0, 0.0, -9.81]
-[volume]
-procedural = \"block\"
-size_m = [0.04, 0.04, 0.04]
-voxels = [16, 16, 16]
-[[materials]]
-label = 1
-youngs_modulus = 3000.0
-poisson_ratio = 0.45
-density = 1000.0
-[model]
-kind = \"corotational\"
-[integrator]
-kind = \"implicit-euler\"
-dt = {dt}
-rayleigh_alpha = 2.0
-rayleigh_beta = 0.01
-{tools}"
-        );
-        let config = SceneConfig::from_toml(&text, "hand.toml").unwrap();
-        let volume = config.procedural_volume().unwrap();
-        Simulation::new(&config, &volume, "hand.toml").unwrap()
-    };
+    let cube = |body: &str| block(&config([0.04; 3], [16; 3], 2, dt, DOWN_G, body));
     // The ball, along +x into the face x = 0 at mid-height of the held 2 cm.
     let mut sim = cube(
         "[[fixed]]

@@ -8,6 +8,7 @@ use super::{OrganSurface, ToolRig};
 use crate::config::Cutting;
 use incise_grid::BranchedGrid;
 use incise_math::Vec3;
+use incise_math::mat3::{norm, sub};
 use incise_mesh::TetTopology;
 use incise_tool::proxy::{
     Facet, Obstacles, PENETRATION_TOLERANCE, Push, Reach, Touch, advance, place, push,
@@ -22,14 +23,6 @@ pub(crate) const SKIN: f64 = 2e-5;
 /// How far toward the device a stopped proxy is probed for material its cutting shape has not
 /// cut (m): beyond the motion's resolution, within the skin.
 const UNCUT_PROBE: f64 = 1e-5;
-
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    std::array::from_fn(|k| a[k] - b[k])
-}
-
-fn norm(v: Vec3) -> f64 {
-    v.iter().map(|c| c * c).sum::<f64>().sqrt()
-}
 
 /// The deformed tissue as the proxies see it in one step.
 pub(crate) struct TissueView<'a> {

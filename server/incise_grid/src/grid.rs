@@ -103,6 +103,17 @@ pub struct LevelSummary {
     pub fill_ratio: f64,
 }
 
+/// What [`BranchedGrid::element_voxels_where`] does with a block of voxels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Block {
+    /// None of its voxels is wanted.
+    Skip,
+    /// All of them are.
+    All,
+    /// Some may be: its voxels are listed, asking for the blocks inside it first.
+    Some,
+}
+
 /// The Dynamic Branched Grid of one organ.
 #[derive(Clone, Debug)]
 pub struct BranchedGrid {
@@ -379,6 +390,47 @@ impl BranchedGrid {
         let top = self.levels.len() - 1;
         if let Some(e) = self.levels[top].element(id) {
             self.collect_voxels(top, e, out);
+        }
+    }
+
+    /// [`BranchedGrid::element_voxels_into`] keeping only the blocks `keep` accepts: before a
+    /// descendant's voxels are listed, `keep(first, size)` is asked for its cell's block of fine
+    /// voxels (the lowest voxel's coordinates and the edge in voxels): [`Block::Skip`] skips it
+    /// whole, [`Block::All`] takes all its voxels without asking for the blocks inside it. The
+    /// voxels kept come in the same order as all of them would.
+    pub fn element_voxels_where(
+        &self,
+        id: u32,
+        keep: &mut impl FnMut([u32; 3], u32) -> Block,
+        out: &mut Vec<u32>,
+    ) {
+        let top = self.levels.len() - 1;
+        if let Some(e) = self.levels[top].element(id) {
+            self.collect_voxels_where(top, e, keep, out);
+        }
+    }
+
+    fn collect_voxels_where(
+        &self,
+        level_index: usize,
+        e: &crate::topology::Element,
+        keep: &mut impl FnMut([u32; 3], u32) -> Block,
+        out: &mut Vec<u32>,
+    ) {
+        let level = &self.levels[level_index];
+        let size = 1u32 << level.level();
+        match keep(level.cell_coords(e.cell).map(|c| c * size), size) {
+            Block::Skip => {}
+            Block::All => self.collect_voxels(level_index, e, out),
+            Block::Some if level_index == 0 => out.extend_from_slice(&e.children),
+            Block::Some => {
+                for &c in &e.children {
+                    let child = &self.levels[level_index - 1]
+                        .element(c)
+                        .expect("child of a live element is live");
+                    self.collect_voxels_where(level_index - 1, child, keep, out);
+                }
+            }
         }
     }
 

@@ -19,7 +19,7 @@ pub mod topology;
 pub mod volume;
 
 pub use error::{EditError, VolumeError};
-pub use grid::{BranchedGrid, ElementMatrices, GridChanges, GridEdit, LevelSummary};
+pub use grid::{Block, BranchedGrid, ElementMatrices, GridChanges, GridEdit, LevelSummary};
 pub use material::{LabelFilter, Material, MaterialTable};
 pub use topology::{Element, Level, LevelChanges, Node};
 pub use volume::LabelVolume;

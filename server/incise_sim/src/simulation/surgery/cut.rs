@@ -16,8 +16,8 @@
 
 use super::surface::OrganSurface;
 use incise_fem::forcefield::springs::EmbeddedPoint;
-use incise_grid::BranchedGrid;
 use incise_grid::hex8::shape;
+use incise_grid::{Block, BranchedGrid};
 use incise_math::Vec3;
 use incise_mesh::TetTopology;
 use incise_tool::proxy::Facet;
@@ -56,8 +56,22 @@ impl DeformedGrid<'_> {
 
     /// The deformed centre of voxel `v` of the element `frame` describes.
     fn centre_in(&self, frame: &ElementFrame, v: u32) -> Vec3 {
+        let dims = self.grid.fine().dims();
+        self.centre_at(frame, [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])])
+    }
+
+    /// The trilinear weights of voxel `v`'s centre on the corners of the element `frame`
+    /// describes.
+    fn weights_in(&self, frame: &ElementFrame, v: u32) -> [f64; 8] {
+        let dims = self.grid.fine().dims();
+        self.weights_at(frame, [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])])
+    }
+
+    /// The deformed centre of the voxel at fine coordinates `c` in the element `frame`
+    /// describes (also where no voxel is).
+    fn centre_at(&self, frame: &ElementFrame, c: [u32; 3]) -> Vec3 {
         let mut p = [0.0; 3];
-        for (q, w) in frame.corners.iter().zip(self.weights_in(frame, v)) {
+        for (q, w) in frame.corners.iter().zip(self.weights_at(frame, c)) {
             for k in 0..3 {
                 p[k] += w * q[k];
             }
@@ -65,12 +79,11 @@ impl DeformedGrid<'_> {
         p
     }
 
-    /// The trilinear weights of voxel `v`'s centre on the corners of the element `frame`
-    /// describes.
-    fn weights_in(&self, frame: &ElementFrame, v: u32) -> [f64; 8] {
+    /// The trilinear weights of the centre of the voxel at fine coordinates `c` on the corners
+    /// of the element `frame` describes.
+    fn weights_at(&self, frame: &ElementFrame, c: [u32; 3]) -> [f64; 8] {
         let grid = self.grid;
-        let (size, h, dims) = (grid.element_size(), grid.spacing(), grid.fine().dims());
-        let c = [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])];
+        let (size, h) = (grid.element_size(), grid.spacing());
         let xi: Vec3 = std::array::from_fn(|a| {
             ((f64::from(c[a]) + 0.5) * h[a] - f64::from(frame.cell[a]) * size[a]) / size[a]
         });
@@ -152,10 +165,32 @@ impl DeformedGrid<'_> {
             if (0..3).any(|k| b[k] < lo[k] - reach || a[k] > hi[k] + reach) {
                 continue;
             }
-            // The element's voxels are its own: their centres from its frame, looked up once.
+            // The element's voxels are its own: their centres from its frame, looked up once,
+            // in the blocks (its descendants' cells) whose deformed boxes meet the box: a block's
+            // centres are trilinear in the frame, so they lie within the box of its corners'.
             voxels.clear();
-            self.grid.element_voxels_into(id, &mut voxels);
             let frame = self.frame(element);
+            let mut meets = |first: [u32; 3], size: u32| {
+                let (mut a, mut b) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+                for corner in 0..8u32 {
+                    let at: [u32; 3] = std::array::from_fn(|k| {
+                        first[k] + if corner >> k & 1 == 0 { 0 } else { size - 1 }
+                    });
+                    let p = self.centre_at(&frame, at);
+                    for k in 0..3 {
+                        a[k] = a[k].min(p[k]);
+                        b[k] = b[k].max(p[k]);
+                    }
+                }
+                if (0..3).any(|k| b[k] < box_lo[k] || a[k] > box_hi[k]) {
+                    Block::Skip
+                } else if (0..3).all(|k| a[k] >= box_lo[k] && b[k] <= box_hi[k]) {
+                    Block::All
+                } else {
+                    Block::Some
+                }
+            };
+            self.grid.element_voxels_where(id, &mut meets, &mut voxels);
             for &v in &voxels {
                 let c = self.centre_in(&frame, v);
                 if in_box(&c) {

@@ -71,6 +71,11 @@ fn region(shape: &Shape, poses: &[&Pose], by: f64) -> (Vec3, Vec3) {
     (lo, hi)
 }
 
+/// The box around boxes `a` and `b`.
+fn union(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> (Vec3, Vec3) {
+    (std::array::from_fn(|k| a.0[k].min(b.0[k])), std::array::from_fn(|k| a.1[k].max(b.1[k])))
+}
+
 /// Whether box `inner` lies within box `outer`.
 fn within(inner: (Vec3, Vec3), outer: (Vec3, Vec3)) -> bool {
     (0..3).all(|k| inner.0[k] >= outer.0[k] && inner.1[k] <= outer.1[k])
@@ -141,19 +146,33 @@ impl ToolRig {
                 }
                 _ => Vec::new(),
             };
-            // A voxel cutter's voxels, looked up once for the poses the motion tries between
-            // the step's start and the device; a pose a slide takes beyond them looks afresh.
-            let voxels = self.cutter.as_ref().filter(|_| self.cuts()).and_then(|inner| {
-                let Body::Hex { grid, by_grid_node } = &view.body else { return None };
-                if self.spec.cutting != Cutting::Remove {
-                    return None;
+            // A voxel cutter's voxels, looked up at the first test over the box its cutting
+            // shape sweeps from the step's start to the pose tested (and a margin), and kept for
+            // the other poses the motion tries; a pose beyond them looks them up again over both
+            // boxes.
+            let deformed = match &view.body {
+                Body::Hex { grid, by_grid_node }
+                    if self.cuts() && self.spec.cutting == Cutting::Remove =>
+                {
+                    Some(DeformedGrid { grid, by_grid_node })
                 }
-                let bounds = region(inner, &[&start, &device], 0.0);
-                Some(cut::VoxelCentres::near(&DeformedGrid { grid, by_grid_node }, bounds))
-            });
-            let uncut = |a: &Pose, b: &Pose| match (&voxels, &self.cutter) {
-                (Some(voxels), Some(inner)) if within(inner.grid_bounds(b), voxels.bounds) => {
-                    voxels.holds_new(inner, a, b)
+                _ => None,
+            };
+            let voxels = std::cell::RefCell::new(None::<cut::VoxelCentres>);
+            let uncut = |a: &Pose, b: &Pose| match (&deformed, &self.cutter) {
+                (Some(grid), Some(inner)) => {
+                    let wanted = inner.grid_bounds(b);
+                    let mut voxels = voxels.borrow_mut();
+                    let held = voxels.as_ref().is_some_and(|v| within(wanted, v.bounds));
+                    if !held {
+                        let margin = 0.05 * inner.thinnest();
+                        let mut bounds = region(inner, &[a, b], margin);
+                        if let Some(v) = voxels.as_ref() {
+                            bounds = union(bounds, v.bounds);
+                        }
+                        *voxels = Some(cut::VoxelCentres::near(grid, bounds));
+                    }
+                    voxels.as_ref().is_some_and(|v| v.holds_new(inner, a, b))
                 }
                 _ => self.uncut(view, &reachable, a, b),
             };

@@ -268,20 +268,26 @@ impl OrganSurface {
                 let near =
                     |p: &Vec3| (0..3).all(|k| p[k] >= lo[k] - reach && p[k] <= hi[k] + reach);
                 let vertices = surface.vertices();
-                let mut cubes: Vec<u32> = live
+                // Several vertices share an owner voxel, and neighbouring voxels share cubes:
+                // each is taken once, and a triangle lies in one cube only.
+                let mut owners: Vec<u32> = live
                     .iter()
                     .filter(|&&v| near(&positions[v as usize]))
-                    .flat_map(|&v| surface.cubes_of_voxel(vertices[v as usize].voxel))
+                    .map(|&v| vertices[v as usize].voxel)
                     .collect();
+                owners.sort_unstable();
+                owners.dedup();
+                let mut cubes: Vec<u32> =
+                    owners.iter().flat_map(|&v| surface.cubes_of_voxel(v)).collect();
                 cubes.sort_unstable();
                 cubes.dedup();
                 let triangles = surface.triangles();
-                let mut ids: Vec<u32> =
-                    cubes.iter().flat_map(|&c| surface.cube_triangles(c)).collect();
-                ids.sort_unstable();
-                for id in ids {
-                    push(id, &triangles[id as usize]);
+                for &c in &cubes {
+                    for id in surface.cube_triangles(c) {
+                        push(id, &triangles[id as usize]);
+                    }
                 }
+                out[start..].sort_unstable_by_key(|f| f.id);
             }
             Self::Tetrahedra { surface, .. } => {
                 for (id, t) in surface.live_triangles() {

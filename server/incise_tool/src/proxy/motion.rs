@@ -168,16 +168,10 @@ impl<'a> Rules<'a> {
 
     /// Whether the proxy may be at `pose`.
     fn allows(&self, pose: &Pose) -> bool {
-        if !self.may_be_inside && (self.obstacles.inside)(centre(self.shape, pose)) {
-            return false;
-        }
-        if let (Some(uncut), Some(from)) = (self.obstacles.uncut, &self.from)
-            && uncut(from, pose)
-        {
-            return false;
-        }
+        // The cheapest tests first: the triangles near the shape, most of them passed on
+        // their clearance alone, then the volume and the material not cut.
         let moved = self.from.as_ref().map_or(f64::INFINITY, |from| self.moved(from, pose));
-        self.obstacles.facets.iter().zip(&self.floors).zip(&self.clearances).all(
+        let clear = self.obstacles.facets.iter().zip(&self.floors).zip(&self.clearances).all(
             |((f, &floor), &clear)| {
                 if clear - moved >= floor {
                     return true;
@@ -186,7 +180,14 @@ impl<'a> Rules<'a> {
                 surely_at_least(self.shape, &t, floor, &self.reach)
                     || gap_at_least(self.shape, &t, floor)
             },
-        )
+        );
+        if !clear {
+            return false;
+        }
+        if !self.may_be_inside && (self.obstacles.inside)(centre(self.shape, pose)) {
+            return false;
+        }
+        !matches!((self.obstacles.uncut, &self.from), (Some(uncut), Some(from)) if uncut(from, pose))
     }
 
     /// How far any point of the shape moves from `from` to `pose` at most (m): the origin's

@@ -510,7 +510,11 @@ fn coexist_json_has_a_row_per_setting_with_the_contract_keys() {
     assert_eq!(settings, [(0, false), (1, false), (1, true), (2, false), (2, true)]);
     for r in &rows[1..] {
         assert!(r["steps_per_s"].as_f64().unwrap() > 0.0, "the physics stepped: {r}");
-        assert!(r["jitter_us_p99"].as_f64().unwrap() >= 0.0);
+        // Times are measured, not asserted; what can be checked is that the quantiles of the
+        // periods' distance from 1 ms are consistent: 0 ≤ p50 ≤ p99 ≤ max, all finite.
+        let q = |key: &str| r[key].as_f64().unwrap();
+        let (p50, p99, max) = (q("jitter_us_p50"), q("jitter_us_p99"), q("jitter_us_max"));
+        assert!(max.is_finite() && 0.0 <= p50 && p50 <= p99 && p99 <= max, "{r}");
     }
 }
 

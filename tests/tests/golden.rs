@@ -1,5 +1,5 @@
-//! Golden state hashes: the state after a fixed number of steps of three committed scenes, pinned
-//! bit for bit. Any change to the numbers a step produces (an operation reordered, a tolerance
+//! Golden state hashes: the state after a fixed number of steps of committed scenes, pinned bit
+//! for bit. Any change to the numbers a step produces (an operation reordered, a tolerance
 //! moved, a kernel rewritten) fails here, so such a change is always a deliberate commit that says
 //! why the hashes moved and regenerates them (`GOLDEN_PRINT=1 cargo test --release -p incise_tests
 //! --test golden -- --nocapture` prints the new values).

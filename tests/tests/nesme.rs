@@ -319,7 +319,8 @@ fn condensed_elements_beat_uniform_ones_on_a_block_with_holes() {
         u16::from(!hole)
     });
     let table = MaterialTable::uniform(&[1], Material::new(3e3, 0.3, 1000.0));
-    // Held above z = 40 mm (a level-3 node plane: 5 cells of 8 voxels of 2 mm... 40 = 20 voxels).
+    // Held above z = 32 mm: 16 voxels of 2 mm, a node plane at every level up to 3 (whose cells
+    // are 8 voxels across).
     compare("block with holes", &v, &table, 0.032);
 }
 

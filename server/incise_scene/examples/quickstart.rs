@@ -1,4 +1,5 @@
-//! The README's example: read a scene, build a `Simulation`, step it, cut it, step on.
+//! The library guide's example (`docs/library.md`): read a scene, build a `Simulation`, step it,
+//! cut it, step on.
 //! `cargo run --release -p incise_scene --example quickstart`
 use incise_grid::GridEdit;
 use incise_sim::{Simulation, StepInputs};

@@ -8,7 +8,7 @@ mod common;
 use common::{Rng, materials, random_edit, random_volume, reference_level, without_children};
 use incise_grid::canonical::{canonical_levels, compare_grids};
 use incise_grid::procedural::from_fn;
-use incise_grid::{BranchedGrid, GridEdit, Material, MaterialTable};
+use incise_grid::{Block, BranchedGrid, GridEdit, Material, MaterialTable};
 use proptest::prelude::*;
 
 fn check_changes(grid: &BranchedGrid, changes: &incise_grid::GridChanges) -> Result<(), String> {
@@ -102,6 +102,63 @@ proptest! {
             if let Some(d) = without_children(top).first_difference(&reference_level(&grid, level)) {
                 prop_assert!(false, "step {}: top level differs from the brute-force reference: {}", i, d);
             }
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(common::cases(96)))]
+
+    /// Walking an element's descendants and skipping the blocks outside a box of voxels, or
+    /// taking a block inside it whole, lists exactly the element's voxels in the box, in the
+    /// order `element_voxels_into` lists them; after cuts too.
+    #[test]
+    fn voxels_by_block_are_the_element_voxels_in_the_box(
+        dims in prop::array::uniform3(1usize..13),
+        density in 0.3f64..1.0,
+        level in 0u32..=3,
+        seed in any::<u64>(),
+        lo in prop::array::uniform3(0u32..12),
+        span in prop::array::uniform3(0u32..8),
+        cuts in 0usize..6,
+    ) {
+        let v = random_volume(dims, density, 2, seed);
+        let mut grid = BranchedGrid::build(&v, &materials(2), level).unwrap();
+        let mut rng = Rng(seed ^ 0x5851_f42d_4c95_7f2d | 1);
+        if cuts > 0 {
+            let edit = random_edit(&grid, &mut rng, cuts, cuts);
+            grid.apply(&edit).unwrap();
+        }
+        let hi: [u32; 3] = std::array::from_fn(|k| lo[k] + span[k]);
+        let d = grid.fine().dims();
+        let inside = |c: [u32; 3]| (0..3).all(|k| c[k] >= lo[k] && c[k] <= hi[k]);
+        let ids: Vec<u32> = grid.top().elements().map(|(id, _)| id).collect();
+        for id in ids {
+            let mut all = Vec::new();
+            grid.element_voxels_into(id, &mut all);
+            let want: Vec<u32> = all
+                .into_iter()
+                .filter(|&v| inside([v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])]))
+                .collect();
+            let mut got = Vec::new();
+            grid.element_voxels_where(
+                id,
+                &mut |first: [u32; 3], size: u32| {
+                    let last: [u32; 3] = std::array::from_fn(|k| first[k] + size - 1);
+                    if (0..3).any(|k| last[k] < lo[k] || first[k] > hi[k]) {
+                        Block::Skip
+                    } else if inside(first) && inside(last) {
+                        Block::All
+                    } else {
+                        Block::Some
+                    }
+                },
+                &mut got,
+            );
+            // A finest block answered `Some` lists its voxels whole, for the caller to test one
+            // by one (as `each_near` tests their centres): filtered here the same way.
+            got.retain(|&v| inside([v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])]));
+            prop_assert_eq!(got, want, "element {}", id);
         }
     }
 }

@@ -23,6 +23,7 @@ use incise_mesh::TetTopology;
 use incise_tool::proxy::Facet;
 use incise_tool::volume_contact::ContactDevice;
 use incise_tool::{Pose, Shape, SweptBlade, flood};
+use std::cell::RefCell;
 
 /// Deformed positions of the grid's nodes by grid node id, and the grid: what a voxel's deformed
 /// centre is interpolated from.
@@ -337,28 +338,56 @@ pub fn links_crossed(
     links
 }
 
+/// The voxels a step's tests of a cutting shape looked up, kept for its later tests.
+#[derive(Default)]
+pub struct VoxelCache(RefCell<Option<VoxelCentres>>);
+
 /// Whether `inner` moved from `from` to `to` holds a voxel's deformed centre at `to` that it did
 /// not hold at `from`: material it would have to cut before it can be there.
-pub fn holds_new_voxels(inner: &Shape, from: &Pose, to: &Pose, grid: &DeformedGrid) -> bool {
-    let holds = |pose: &Pose, c: Vec3| inner.distance(pose.tool_from_grid(c)).0 < 0.0;
-    let mut found = false;
-    grid.each_near(inner.grid_bounds(to), 0.0, |_, c, _| {
-        found = found || (holds(to, c) && !holds(from, c));
-    });
-    found
+///
+/// The motion tests many poses a step, all from the step's start: the voxels are looked up at
+/// the first test over the box the shape sweeps from `from` to `to` (and a twentieth of its
+/// thinnest size), kept in `cache`, and looked up again, over that box and the one before, only
+/// for a pose whose shape leaves it.
+pub fn holds_new_voxels(
+    inner: &Shape,
+    from: &Pose,
+    to: &Pose,
+    grid: &DeformedGrid,
+    cache: &VoxelCache,
+) -> bool {
+    let (lo, hi) = inner.grid_bounds(to);
+    let mut voxels = cache.0.borrow_mut();
+    let within = |(a, b): (Vec3, Vec3)| (0..3).all(|k| lo[k] >= a[k] && hi[k] <= b[k]);
+    if !voxels.as_ref().is_some_and(|v| within(v.bounds)) {
+        let margin = 0.05 * inner.thinnest();
+        let (a, b) = inner.grid_bounds(from);
+        let mut bounds: (Vec3, Vec3) = (
+            std::array::from_fn(|k| (a[k] - margin).min(lo[k] - margin)),
+            std::array::from_fn(|k| (b[k] + margin).max(hi[k] + margin)),
+        );
+        if let Some(v) = voxels.as_ref() {
+            bounds = (
+                std::array::from_fn(|k| bounds.0[k].min(v.bounds.0[k])),
+                std::array::from_fn(|k| bounds.1[k].max(v.bounds.1[k])),
+            );
+        }
+        *voxels = Some(VoxelCentres::near(grid, bounds));
+    }
+    voxels.as_ref().is_some_and(|v| v.holds_new(inner, from, to))
 }
 
 /// The deformed centres of the voxels in `bounds`, looked up once for many tests of
 /// [`VoxelCentres::holds_new`] (sorted along x, so that a test scans only its shape's slab).
-pub struct VoxelCentres {
+struct VoxelCentres {
     centres: Vec<Vec3>,
     /// The region they were looked up in.
-    pub bounds: (Vec3, Vec3),
+    bounds: (Vec3, Vec3),
 }
 
 impl VoxelCentres {
     /// The voxels of `grid` whose deformed centres lie in `bounds`.
-    pub fn near(grid: &DeformedGrid, bounds: (Vec3, Vec3)) -> Self {
+    fn near(grid: &DeformedGrid, bounds: (Vec3, Vec3)) -> Self {
         let mut centres = Vec::new();
         grid.each_near(bounds, 0.0, |_, c, _| centres.push(c));
         centres.sort_by(|a, b| a[0].total_cmp(&b[0]));
@@ -366,7 +395,7 @@ impl VoxelCentres {
     }
 
     /// [`holds_new_voxels`] for a pose `to` whose shape lies within the bounds.
-    pub fn holds_new(&self, inner: &Shape, from: &Pose, to: &Pose) -> bool {
+    fn holds_new(&self, inner: &Shape, from: &Pose, to: &Pose) -> bool {
         let holds = |pose: &Pose, c: Vec3| inner.distance(pose.tool_from_grid(c)).0 < 0.0;
         let (lo, hi) = inner.grid_bounds(to);
         let first = self.centres.partition_point(|c| c[0] < lo[0]);

@@ -71,11 +71,6 @@ fn region(shape: &Shape, poses: &[&Pose], by: f64) -> (Vec3, Vec3) {
     (lo, hi)
 }
 
-/// The box around boxes `a` and `b`.
-fn union(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> (Vec3, Vec3) {
-    (std::array::from_fn(|k| a.0[k].min(b.0[k])), std::array::from_fn(|k| a.1[k].max(b.1[k])))
-}
-
 /// Whether box `inner` lies within box `outer`.
 fn within(inner: (Vec3, Vec3), outer: (Vec3, Vec3)) -> bool {
     (0..3).all(|k| inner.0[k] >= outer.0[k] && inner.1[k] <= outer.1[k])
@@ -146,36 +141,10 @@ impl ToolRig {
                 }
                 _ => Vec::new(),
             };
-            // A voxel cutter's voxels, looked up at the first test over the box its cutting
-            // shape sweeps from the step's start to the pose tested (and a margin), and kept for
-            // the other poses the motion tries; a pose beyond them looks them up again over both
-            // boxes.
-            let deformed = match &view.body {
-                Body::Hex { grid, by_grid_node }
-                    if self.cuts() && self.spec.cutting == Cutting::Remove =>
-                {
-                    Some(DeformedGrid { grid, by_grid_node })
-                }
-                _ => None,
-            };
-            let voxels = std::cell::RefCell::new(None::<cut::VoxelCentres>);
-            let uncut = |a: &Pose, b: &Pose| match (&deformed, &self.cutter) {
-                (Some(grid), Some(inner)) => {
-                    let wanted = inner.grid_bounds(b);
-                    let mut voxels = voxels.borrow_mut();
-                    let held = voxels.as_ref().is_some_and(|v| within(wanted, v.bounds));
-                    if !held {
-                        let margin = 0.05 * inner.thinnest();
-                        let mut bounds = region(inner, &[a, b], margin);
-                        if let Some(v) = voxels.as_ref() {
-                            bounds = union(bounds, v.bounds);
-                        }
-                        *voxels = Some(cut::VoxelCentres::near(grid, bounds));
-                    }
-                    voxels.as_ref().is_some_and(|v| v.holds_new(inner, a, b))
-                }
-                _ => self.uncut(view, &reachable, a, b),
-            };
+            // A voxel cutter's voxels, looked up at the first test and kept for the other poses
+            // the motion tries (`cut::holds_new_voxels`).
+            let voxels = cut::VoxelCache::default();
+            let uncut = |a: &Pose, b: &Pose| self.uncut(view, &reachable, &voxels, a, b);
             let cuts = self.cuts();
             let obstacles = Obstacles {
                 facets: &facets,
@@ -238,14 +207,22 @@ impl ToolRig {
 
     /// Whether this tool's cutting shape moved from `from` to `to` would be in material it has
     /// not cut ([`incise_tool::proxy::Obstacles::uncut`]).
-    /// `reachable`: in a tensor-mass scene, the tetrahedra the cutting shape may reach.
-    fn uncut(&self, view: &TissueView, reachable: &[usize], from: &Pose, to: &Pose) -> bool {
+    /// `reachable`: in a tensor-mass scene, the tetrahedra the cutting shape may reach;
+    /// `voxels`: in a voxel scene, the voxels earlier tests of the step looked up.
+    fn uncut(
+        &self,
+        view: &TissueView,
+        reachable: &[usize],
+        voxels: &cut::VoxelCache,
+        from: &Pose,
+        to: &Pose,
+    ) -> bool {
         let Some(inner) = &self.cutter else { return false };
         match (&view.body, self.spec.cutting) {
             (_, Cutting::Off) => false,
             (Body::Hex { grid, by_grid_node }, Cutting::Remove) => {
                 let deformed = DeformedGrid { grid, by_grid_node };
-                cut::holds_new_voxels(inner, from, to, &deformed)
+                cut::holds_new_voxels(inner, from, to, &deformed, voxels)
             }
             (Body::Hex { grid, by_grid_node }, Cutting::Separate) => {
                 let deformed = DeformedGrid { grid, by_grid_node };

@@ -155,6 +155,28 @@ impl Shape {
         }
     }
 
+    /// The signed distance alone (m, negative inside) of tool-frame point `q`: the same value as
+    /// [`Shape::distance`]'s, without the normal.
+    #[must_use]
+    pub fn signed_distance(&self, q: Vec3) -> f64 {
+        let p: Vec3 = std::array::from_fn(|k| q[k] - self.offset[k]);
+        let primitive = match &self.kind {
+            Kind::Primitive(primitive) => *primitive,
+            Kind::Mesh(mesh) => return mesh.distance(p).0,
+        };
+        match primitive {
+            Primitive::Sphere { radius } => ball(p, radius).0,
+            Primitive::Capsule { radius, length } => {
+                ball([p[0], p[1], p[2] - p[2].clamp(0.0, length)], radius).0
+            }
+            Primitive::Cuboid { half_extents } => cuboid_distance(p, half_extents),
+            Primitive::Blade { length, height, thickness } => cuboid_distance(
+                [p[0], p[1], p[2] - 0.5 * height],
+                [0.5 * length, 0.5 * thickness, 0.5 * height],
+            ),
+        }
+    }
+
     /// The shape's bounding box in the tool frame, `(min, max)`.
     #[must_use]
     pub fn bounds(&self) -> (Vec3, Vec3) {
@@ -287,6 +309,17 @@ fn ball(p: Vec3, radius: f64) -> (f64, Vec3) {
     (r - radius, n)
 }
 
+/// The signed distance of a box of half extents `h` about the origin ([`cuboid`]'s value).
+fn cuboid_distance(p: Vec3, h: Vec3) -> f64 {
+    let q: Vec3 = std::array::from_fn(|k| p[k].abs() - h[k]);
+    let out_len = q.iter().map(|c| c.max(0.0) * c.max(0.0)).sum::<f64>().sqrt();
+    if out_len > 0.0 {
+        return out_len;
+    }
+    let axis = (0..3).fold(0, |best, k| if q[k] > q[best] { k } else { best });
+    q[axis]
+}
+
 /// The signed distance and normal of a box of half extents `h` about the origin.
 fn cuboid(p: Vec3, h: Vec3) -> (f64, Vec3) {
     let q: Vec3 = std::array::from_fn(|k| p[k].abs() - h[k]);
@@ -319,6 +352,18 @@ mod tests {
             )
             .unwrap(),
         ]
+    }
+
+    #[test]
+    fn the_distance_alone_is_the_distance_bit_for_bit() {
+        for shape in shapes() {
+            for i in 0..2000 {
+                let q: Vec3 =
+                    std::array::from_fn(|k| 0.03 * ((i * 7 + k * 13) as f64 * 0.37).sin());
+                let (d, _) = shape.distance(q);
+                assert_eq!(shape.signed_distance(q).to_bits(), d.to_bits(), "{shape:?} at {q:?}");
+            }
+        }
     }
 
     #[test]

@@ -79,7 +79,7 @@ pub fn surely_at_least(shape: &Shape, t: &[Vec3; 3], bound: f64, reach: &Reach) 
     if norm(sub(c, reach.centre)) - reach.radius - r >= bound {
         return true;
     }
-    shape.distance(c).0 - r >= bound
+    shape.signed_distance(c) - r >= bound
 }
 
 /// A shape's bounding ball and box in the tool frame: first tests that need no distance
@@ -116,24 +116,25 @@ fn from_axis(t: &[Vec3; 3], bary: [f64; 3], d: Vec3, radius: f64) -> Gap {
     Gap { distance: len - radius, bary, normal }
 }
 
-/// A sub-triangle waiting to be split, by the lower bound of the distance over it.
-struct Candidate {
+/// A sub-triangle waiting to be split, by the lower bound of the distance over it; its corners
+/// are indices into the search's vertices, so that the queue moves little.
+struct Queued {
     bound: f64,
-    corners: [[f64; 3]; 3],
+    corners: [u16; 3],
 }
 
-impl PartialEq for Candidate {
+impl PartialEq for Queued {
     fn eq(&self, other: &Self) -> bool {
         self.bound.total_cmp(&other.bound) == Ordering::Equal
     }
 }
-impl Eq for Candidate {}
-impl PartialOrd for Candidate {
+impl Eq for Queued {}
+impl PartialOrd for Queued {
     fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
         Some(self.cmp(other))
     }
 }
-impl Ord for Candidate {
+impl Ord for Queued {
     /// The smallest bound first (a max-heap of reversed bounds).
     fn cmp(&self, other: &Self) -> Ordering {
         other.bound.total_cmp(&self.bound)
@@ -147,16 +148,25 @@ struct Search<'a> {
     evaluations: usize,
     /// The least distance sampled and where.
     best: (f64, [f64; 3]),
-    heap: BinaryHeap<Candidate>,
+    heap: BinaryHeap<Queued>,
+    /// The sub-triangles' corners: barycentric coordinates in the whole triangle, and the
+    /// points they give.
+    vertices: Vec<([f64; 3], Vec3)>,
 }
 
 impl Search<'_> {
-    /// The distance at barycentric point `b`, kept if it is the least so far by more than the
-    /// resolution (so that on a triangle lying flush on a face the point first sampled, its
-    /// centroid, stays: the middle of the touch, not a corner).
-    fn sample(&mut self, b: [f64; 3]) -> f64 {
+    /// Adds the vertex at barycentric point `b`.
+    fn vertex(&mut self, b: [f64; 3]) -> u16 {
+        self.vertices.push((b, at_bary(self.t, b)));
+        u16::try_from(self.vertices.len() - 1).expect("a search has few vertices")
+    }
+
+    /// The distance at barycentric point `b`, which is `p`, kept if it is the least so far by
+    /// more than the resolution (so that on a triangle lying flush on a face the point first
+    /// sampled, its centroid, stays: the middle of the touch, not a corner).
+    fn sample(&mut self, b: [f64; 3], p: Vec3) -> f64 {
         self.evaluations += 1;
-        let d = self.shape.distance(at_bary(self.t, b)).0;
+        let d = self.shape.signed_distance(p);
         if d < self.best.0 - RESOLUTION {
             self.best = (d, b);
         }
@@ -164,14 +174,14 @@ impl Search<'_> {
     }
 
     /// Samples a sub-triangle's centroid and queues it if it may hold a smaller distance.
-    fn consider(&mut self, corners: [[f64; 3]; 3]) {
-        let centroid: [f64; 3] =
-            std::array::from_fn(|k| (corners[0][k] + corners[1][k] + corners[2][k]) / 3.0);
-        let c = at_bary(self.t, centroid);
-        let r = corners.iter().map(|&b| norm(sub(at_bary(self.t, b), c))).fold(0.0, f64::max);
-        let bound = self.sample(centroid) - r;
+    fn consider(&mut self, corners: [u16; 3]) {
+        let [a, b, c] = corners.map(|i| self.vertices[usize::from(i)]);
+        let centroid: [f64; 3] = std::array::from_fn(|k| (a.0[k] + b.0[k] + c.0[k]) / 3.0);
+        let p = at_bary(self.t, centroid);
+        let r = [a.1, b.1, c.1].iter().map(|&q| norm(sub(q, p))).fold(0.0, f64::max);
+        let bound = self.sample(centroid, p) - r;
         if bound < self.best.0 - RESOLUTION {
-            self.heap.push(Candidate { bound, corners });
+            self.heap.push(Queued { bound, corners });
         }
     }
 }
@@ -192,34 +202,39 @@ pub fn gap_at_least(shape: &Shape, t: &[Vec3; 3], floor: f64) -> bool {
 /// The branch and bound over triangle `t`; with a `floor`, stopped once the least distance is
 /// known to be below it or not.
 fn search<'a>(shape: &'a Shape, t: &'a [Vec3; 3], floor: Option<f64>) -> Search<'a> {
-    let corners = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     let mut search = Search {
         shape,
         t,
         evaluations: 0,
-        best: (f64::INFINITY, corners[0]),
-        // Each split evaluates seven points and queues at most four sub-triangles for the one
-        // it takes, so the queue holds fewer than half as many as there are evaluations: one
-        // allocation instead of a doubling at each growth.
+        best: (f64::INFINITY, [1.0, 0.0, 0.0]),
+        // Each split evaluates seven points, adds three vertices and queues at most four
+        // sub-triangles for the one it takes, so the queue holds fewer than half as many as
+        // there are evaluations, and the vertices as many: one allocation each instead of a
+        // doubling at each growth.
         heap: BinaryHeap::with_capacity(MAX_EVALUATIONS / 2),
+        vertices: Vec::with_capacity(MAX_EVALUATIONS / 2),
     };
-    search.consider(corners);
-    for b in corners {
-        search.sample(b);
+    let root = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].map(|b| search.vertex(b));
+    search.consider(root);
+    for i in root {
+        let (b, p) = search.vertices[usize::from(i)];
+        search.sample(b, p);
     }
-    while let Some(Candidate { bound, corners: [a, b, c] }) = search.heap.pop() {
+    while let Some(Queued { bound, corners: [a, b, c] }) = search.heap.pop() {
         if bound >= search.best.0 - RESOLUTION || search.evaluations >= MAX_EVALUATIONS {
             break;
         }
         if floor.is_some_and(|f| search.best.0 < f || bound >= f) {
             break;
         }
-        let mid =
-            |p: [f64; 3], q: [f64; 3]| -> [f64; 3] { std::array::from_fn(|k| 0.5 * (p[k] + q[k])) };
-        let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
-        for m in [ab, bc, ca] {
-            search.sample(m);
-        }
+        let mid = |search: &mut Search, p: u16, q: u16| -> u16 {
+            let (p, q) = (search.vertices[usize::from(p)].0, search.vertices[usize::from(q)].0);
+            let m = search.vertex(std::array::from_fn(|k| 0.5 * (p[k] + q[k])));
+            let (b, point) = search.vertices[usize::from(m)];
+            search.sample(b, point);
+            m
+        };
+        let (ab, bc, ca) = (mid(&mut search, a, b), mid(&mut search, b, c), mid(&mut search, c, a));
         for child in [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]] {
             search.consider(child);
         }

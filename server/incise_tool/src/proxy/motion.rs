@@ -283,7 +283,7 @@ fn lower_bound(shape: &Shape, t: &[Vec3; 3], reach: &Reach) -> f64 {
     let c: Vec3 = std::array::from_fn(|k| (t[0][k] + t[1][k] + t[2][k]) / 3.0);
     let r = t.iter().map(|&p| norm(sub(p, c))).fold(0.0, f64::max);
     let ball = norm(sub(c, reach.centre)) - reach.radius - r;
-    if ball > 0.0 { ball } else { ball.max(shape.distance(c).0 - r) }
+    if ball > 0.0 { ball } else { ball.max(shape.signed_distance(c) - r) }
 }
 
 /// The shape's centre (its bounding box's) at `pose`, grid frame.

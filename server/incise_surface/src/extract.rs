@@ -358,7 +358,9 @@ impl Surface {
         })
     }
 
-    fn voxel_coords(&self, v: u32) -> [i64; 3] {
+    /// Coordinates `(i, j, k)` of voxel `v` (its linear index in the fine grid).
+    #[must_use]
+    pub fn voxel_coords(&self, v: u32) -> [i64; 3] {
         let d = self.dims;
         [i64::from(v % d[0]), i64::from((v / d[0]) % d[1]), i64::from(v / (d[0] * d[1]))]
     }

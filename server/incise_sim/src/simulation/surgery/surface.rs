@@ -269,21 +269,42 @@ impl OrganSurface {
                     |p: &Vec3| (0..3).all(|k| p[k] >= lo[k] - reach && p[k] <= hi[k] + reach);
                 let vertices = surface.vertices();
                 // Several vertices share an owner voxel, and neighbouring voxels share cubes:
-                // each is taken once, and a triangle lies in one cube only.
-                let mut owners: Vec<u32> = live
+                // the cubes are marked on a map of the box around the owners' (a cube's
+                // corners are the voxels `(i..=i+1, …)`), so each is taken once, in the order
+                // of its index, and a triangle lies in one cube only.
+                let owners: Vec<[i64; 3]> = live
                     .iter()
                     .filter(|&&v| near(&positions[v as usize]))
-                    .map(|&v| vertices[v as usize].voxel)
+                    .map(|&v| surface.voxel_coords(vertices[v as usize].voxel))
                     .collect();
-                owners.sort_unstable();
-                owners.dedup();
-                let mut cubes: Vec<u32> =
-                    owners.iter().flat_map(|&v| surface.cubes_of_voxel(v)).collect();
-                cubes.sort_unstable();
-                cubes.dedup();
+                let Some(first) = owners.first() else { return };
+                let (mut from, mut to) = (first.map(|c| c - 1), *first);
+                for x in &owners {
+                    for k in 0..3 {
+                        from[k] = from[k].min(x[k] - 1);
+                        to[k] = to[k].max(x[k]);
+                    }
+                }
+                let size: [usize; 3] = std::array::from_fn(|k| (to[k] - from[k] + 1) as usize);
+                let at = |c: [i64; 3]| {
+                    let o: [usize; 3] = std::array::from_fn(|k| (c[k] - from[k]) as usize);
+                    o[0] + size[0] * (o[1] + size[1] * o[2])
+                };
+                let mut marked = vec![false; size.iter().product()];
+                for x in &owners {
+                    for corner in 0..8 {
+                        let o = incise_grid::hex8::corner(corner);
+                        marked[at(std::array::from_fn(|k| x[k] - o[k] as i64))] = true;
+                    }
+                }
                 let triangles = surface.triangles();
-                for &c in &cubes {
-                    for id in surface.cube_triangles(c) {
+                for (index, _) in marked.iter().enumerate().filter(|(_, m)| **m) {
+                    let c = [
+                        from[0] + (index % size[0]) as i64,
+                        from[1] + (index / size[0] % size[1]) as i64,
+                        from[2] + (index / (size[0] * size[1])) as i64,
+                    ];
+                    for id in surface.cube_triangles(surface.cube_index(c)) {
                         push(id, &triangles[id as usize]);
                     }
                 }
@@ -436,6 +457,54 @@ fn boundary_vertices(surface: &TetSurface) -> Vec<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_facets_near_a_box_are_the_live_triangles_meeting_it_in_id_order() {
+        let text = "name = \"organ\"\n[volume]\nprocedural = \"organ\"\n\
+                    size_m = [0.12, 0.09, 0.08]\nvoxels = [24, 18, 16]\n[[materials]]\n\
+                    label = 1\nyoungs_modulus = 3000.0\npoisson_ratio = 0.45\ndensity = 1000.0\n\
+                    [[materials]]\nlabel = 2\nyoungs_modulus = 9000.0\npoisson_ratio = 0.45\n\
+                    density = 1000.0\n[integrator]\nkind = \"implicit-euler\"\ndt = 0.001\n";
+        let config = crate::SceneConfig::from_toml(text, "organ.toml").unwrap();
+        let volume = config.procedural_volume().unwrap();
+        let mut table = incise_grid::MaterialTable::new();
+        for m in &config.materials {
+            table.insert(m.label, m.material());
+        }
+        let grid = BranchedGrid::build(&volume, &table, 1).unwrap();
+        let model = HexModel::from_grid_of_kind(&grid, incise_fem::ElementKind::Condensed);
+        let surface = OrganSurface::voxels(&grid, &model, &SurfaceOptions::default(), 2);
+        // Deformed by a smooth field moving points up to a voxel (5 mm voxels here), as tissue
+        // under a tool is.
+        let positions: Vec<Vec3> = surface
+            .rest_positions(&[])
+            .iter()
+            .map(|p| [p[0] + 0.004 * (80.0 * p[1]).sin(), p[1], p[2] + 0.003 * (60.0 * p[0]).cos()])
+            .collect();
+        let OrganSurface::Voxels { surface: triangles, .. } = &surface else { unreachable!() };
+        let mut boxes = 0;
+        for i in 0..40 {
+            let c: Vec3 = std::array::from_fn(|k| 0.06 + 0.05 * ((i * 3 + k * 7) as f64).sin());
+            let half = 0.0005 + 0.01 * (i % 5) as f64;
+            let region = (c.map(|x| x - half), c.map(|x| x + half));
+            let mut found = Vec::new();
+            surface.facets_near(&positions, region, &mut found);
+            let want: Vec<u32> = triangles
+                .live_triangles()
+                .filter(|(_, t)| {
+                    let p = t.v.map(|v| positions[v as usize]);
+                    (0..3).all(|k| {
+                        p.iter().any(|q| q[k] >= region.0[k])
+                            && p.iter().any(|q| q[k] <= region.1[k])
+                    })
+                })
+                .map(|(id, _)| id)
+                .collect();
+            assert_eq!(found.iter().map(|f| f.id).collect::<Vec<_>>(), want, "box {region:?}");
+            boxes += usize::from(!want.is_empty());
+        }
+        assert!(boxes >= 10, "only {boxes} boxes met the surface");
+    }
 
     #[test]
     fn the_live_list_is_patched_into_a_fresh_one() {

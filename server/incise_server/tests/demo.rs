@@ -28,13 +28,19 @@ fn the_demo_presses_cuts_grasps_and_reports() {
     println!("{summary}");
     assert!(out.status.success(), "{summary}{}", String::from_utf8_lossy(&out.stderr));
     let frames = number_after(&summary, "physics:");
-    // 4,000 frames at 1 kHz on a quiet machine; the check is that the physics ran, not its
-    // rate (a loaded test machine is slower, and rates are the benchmarks' business).
-    assert!(frames > 200.0, "{frames} frames in 4 s at dt 1 ms");
+    // However fast the machine, the demo steps on (its tools idle) until a keyframe interval
+    // and a tenth of simulated time has passed, so that the recording holds a keyframe past
+    // the first to replay from: a count of frames, not a rate (rates are the benchmarks').
+    let dt_s = number_after(&summary, "dt") * 1e-3;
+    let least = (incise_server::physics::KEYFRAME_INTERVAL_S * 1.1 / dt_s).ceil();
+    assert!(frames >= least, "{frames} frames, fewer than the {least} the demo runs to");
     assert!(number_after(&summary, "removed") > 0.0, "the scalpel never cut");
     for tool in ["scalpel over iceoryx2:", "grasper over zenoh:"] {
         let line = summary.lines().find(|l| l.starts_with(tool)).expect(tool);
-        assert!(number_after(line, "poses,") > 200.0, "{line}");
+        // Each client sent poses, the server answered some with forces (no more than were
+        // sent), and one of those pushed (the scalpel on the organ, the grasper holding it).
+        let (sent, answered) = (number_after(line, ":"), number_after(line, "poses,"));
+        assert!(sent > 0.0 && answered > 0.0 && answered <= sent, "{line}");
         assert!(number_after(line, "max force") > 0.0, "{line}");
     }
     let viewer = summary.lines().find(|l| l.starts_with("a viewer over zenoh:")).unwrap();

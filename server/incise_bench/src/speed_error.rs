@@ -31,7 +31,7 @@ use incise_fem::ode::{
 };
 use incise_fem::{ElementKind, Executor, FixedNodes, Formulation, HexForceField, HexModel, Idle};
 use incise_math::Vec3;
-use incise_sim::config::{DEFAULT_CG_TOLERANCE, Level, Model, VolumeSpec};
+use incise_sim::config::{DEFAULT_CG_TOLERANCE, ExecSpec, Level, Model, VolumeSpec};
 use incise_sim::{SceneConfig, Simulation};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -1328,7 +1328,7 @@ pub fn run(args: &SpeedErrorArgs) -> anyhow::Result<()> {
     drop(large);
     // One executor for every row, so that INCISE_THREADS applies to the whole report; the
     // one-thread column runs the same rows again on an executor of one thread.
-    let exec = Executor::configured(None, None);
+    let exec = incise_scene::environment::exec_from_environment(ExecSpec::default())?.executor();
     let one = Executor::new(1, Idle::DEFAULT_SPIN);
     let bar = crate::progress::stages(
         cases.len() as u64 + u64::from(moving_scene.is_some()) + u64::from(!press_cases.is_empty()),

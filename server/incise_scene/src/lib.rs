@@ -5,6 +5,8 @@
 //! This is the one place where mechanics configuration meets files, so that `incise_sim` stays
 //! pure and `incise_io` knows only geometry.
 
+pub mod environment;
+
 use incise_grid::LabelVolume;
 use incise_io::{IoError, MeshOptions};
 use incise_mesh::TetMesh;
@@ -92,6 +94,9 @@ pub enum SceneFileError {
     /// The volume or mesh the scene names could not be read (the message names that file).
     #[error("{0}")]
     Volume(#[from] IoError),
+    /// An environment variable that overrides the scene holds something it does not take.
+    #[error("{0}")]
+    Environment(#[from] environment::EnvironmentError),
 }
 
 /// A scene file as read: its configuration and the geometry it is built on, as the file holds it
@@ -157,6 +162,7 @@ pub fn read_scene(path: &Path) -> Result<Scene, SceneFileError> {
 /// relative to `base`: what a recording's stored scene replays from.
 pub fn scene_from_toml(text: &str, file: &str, base: &Path) -> Result<Scene, SceneFileError> {
     let mut config = SceneConfig::from_toml(text, file)?;
+    config.exec = environment::exec_from_environment(config.exec)?;
     let file = file.to_owned();
     load_tool_meshes(&mut config, base, &file)?;
     let mut notes = Vec::new();

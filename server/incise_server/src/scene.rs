@@ -19,8 +19,9 @@ pub fn load(path: Option<&Path>) -> anyhow::Result<Scene> {
         return incise_scene::read_scene(path)
             .with_context(|| format!("cannot load the scene {}", path.display()));
     }
-    let config = SceneConfig::from_toml(DEMO_SCENE, "<embedded demo scene>")
+    let mut config = SceneConfig::from_toml(DEMO_SCENE, "<embedded demo scene>")
         .context("the embedded scene")?;
+    config.exec = incise_scene::environment::exec_from_environment(config.exec)?;
     let volume = config.procedural_volume().context("the embedded scene is procedural")?;
     Ok(Scene { config, geometry: SceneGeometry::Volume(volume), notes: Vec::new() })
 }

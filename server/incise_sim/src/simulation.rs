@@ -321,8 +321,7 @@ impl Simulation {
     /// [`SceneConfig::procedural_volume`] or a file, before the scene's label filter and stride)
     /// or the tetrahedral mesh of `volume.mesh` (in the file's unit). Only what the scene uses is
     /// built: the grid at its level or the tetrahedra, the model, the chosen integrator. It runs
-    /// on an executor of its own with the scene's `[exec]` settings, which the environment
-    /// variables `INCISE_THREADS` and `INCISE_LINGER_US` override ([`Executor::configured`]).
+    /// on an executor of its own with the scene's `[exec]` settings ([`Executor::configured`]).
     pub fn new<'a>(
         config: &SceneConfig,
         geometry: impl Into<Geometry<'a>>,

@@ -13,8 +13,9 @@ use anyhow::{Context, bail};
 use incise_fem::linsolve::SystemFactor;
 use incise_fem::linsolve::cg::{self, CgSettings, block_jacobi};
 use incise_fem::linsolve::jacobi::preconditioner;
-use incise_fem::{Executor, Formulation, HexForceField};
+use incise_fem::{Formulation, HexForceField};
 use incise_math::Vec3;
+use incise_sim::config::ExecSpec;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -65,7 +66,7 @@ struct Row {
 /// Runs the comparison.
 pub fn run(args: &MultigridArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
-    let exec = Executor::configured(None, None);
+    let exec = incise_scene::environment::exec_from_environment(ExecSpec::default())?.executor();
     for scene in &args.scenes {
         if !["liver_13k", "liver_109k"].contains(&scene.as_str()) {
             bail!("--scenes: unknown scene {scene:?}; expected liver_13k or liver_109k");

@@ -116,19 +116,13 @@ impl Executor {
         Self::new(1, Idle::Sleep)
     }
 
-    /// `threads` and `idle` where given, else the defaults; then the environment variables
-    /// `INCISE_THREADS` (a count) and `INCISE_LINGER_US` (microseconds to spin; 0 sleeps) override
-    /// either, for experiments on a machine without editing a scene.
+    /// `threads` and `idle` where given, else the defaults ([`Self::available_threads`],
+    /// [`Idle::DEFAULT_SPIN`]).
     #[must_use]
     pub fn configured(threads: Option<usize>, idle: Option<Idle>) -> Self {
-        let env_threads = std::env::var("INCISE_THREADS").ok().and_then(|s| s.parse().ok());
-        let env_idle =
-            std::env::var("INCISE_LINGER_US").ok().and_then(|s| s.parse().ok()).map(|us: u64| {
-                if us == 0 { Idle::Sleep } else { Idle::Spin(Duration::from_micros(us)) }
-            });
         Self::new(
-            env_threads.or(threads).unwrap_or_else(Self::available_threads),
-            env_idle.or(idle).unwrap_or(Idle::DEFAULT_SPIN),
+            threads.unwrap_or_else(Self::available_threads),
+            idle.unwrap_or(Idle::DEFAULT_SPIN),
         )
     }
 

@@ -460,7 +460,8 @@ pub struct PatchLoad {
 }
 
 /// `[exec]`: the executor's settings; what is not given takes [`Executor::configured`]'s
-/// defaults, and the environment variables it reads override both.
+/// defaults. (The programs let the environment override them when they load a scene:
+/// `incise_scene::environment`.)
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ExecSpec {
     /// `exec.threads`: 1 to [`MAX_THREADS`].
@@ -479,7 +480,7 @@ impl ExecSpec {
     /// The executor for a process that also runs a real-time thread (the server's 1 kHz
     /// haptic loop): what is not given takes [`Executor::beside_realtime_thread`]'s settings
     /// (one thread fewer than the cores, idle workers sleep), so that thread always finds a
-    /// core; the environment variables still override.
+    /// core.
     #[must_use]
     pub fn executor_beside_realtime_thread(&self) -> Executor {
         let realtime = Executor::beside_realtime_thread();

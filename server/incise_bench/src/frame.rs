@@ -431,7 +431,7 @@ pub fn run(args: &FrameArgs) -> anyhow::Result<()> {
         }
         std::fs::create_dir_all(dir).with_context(|| format!("--record {}", dir.display()))?;
         let file = dir.join(format!("frame-{}.mcap", args.scene.replace(['/', '.'], "_")));
-        let tools = incise_server::physics::tool_looks(&scene.config);
+        let tools = incise_convert::tools::tool_looks(&scene.config);
         let session = incise_record::Session {
             scene: args.scene.clone(),
             scene_toml: std::fs::read_to_string(&path).unwrap_or_default(),
@@ -530,7 +530,8 @@ fn play(
             .step(&StepInputs { tools, ..StepInputs::default() })
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         if let (Some(recorder), Some(raw)) = (recorder, raw) {
-            use incise_server::physics::{frame_record, frame_stats, record_state};
+            use incise_convert::frame::{frame_record, frame_stats};
+            use incise_server::physics::record_state;
             let stats = frame_stats(&frame, sim, step_started.elapsed(), 0.0);
             recorder.record(incise_record::Record::Frame(frame_record(&frame, &raw, stats)));
             record_state(recorder, sim, &frame);

@@ -9,14 +9,15 @@
 //! link across that plane is severed and the top piece is free; the blade holds it a moment,
 //! is pulled out sideways, and the piece falls (through the block: pieces do not collide yet). The frames are stepped as the server steps them
 //! (each pose checked, recorded as checked and converted by
-//! `incise_server::physics::tool_input`), so they replay bit for bit.
+//! `incise_convert::tools::tool_input`), so they replay bit for bit.
 
 use anyhow::Context;
+use incise_convert::frame::{cut_event, frame_record, frame_stats};
+use incise_convert::keyframe::{edit_message, keyframe_message};
+use incise_convert::tools::tool_input;
 use incise_protocol::check::check_pose;
 use incise_protocol::raw::RawToolPose;
 use incise_record::{McapRecording, Session};
-use incise_server::keyframe::{edit_message, keyframe_message};
-use incise_server::physics::{cut_event, frame_record, frame_stats, tool_input};
 use incise_sim::{Simulation, StepInputs};
 use std::path::PathBuf;
 
@@ -105,7 +106,7 @@ fn record(
         scene_toml: scene.to_owned(),
         version: env!("CARGO_PKG_VERSION").into(),
         git_revision: String::new(),
-        tools: incise_server::physics::tool_looks(&parsed.config),
+        tools: incise_convert::tools::tool_looks(&parsed.config),
         scene_interval_s: 0.1,
         files: Vec::new(),
     };

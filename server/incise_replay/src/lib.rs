@@ -134,7 +134,7 @@ fn unpack_files(contents: &Contents) -> anyhow::Result<(PathBuf, PathBuf)> {
 /// When an edit or the keyframe does not decode or does not fit the scene (a recording of
 /// another build whose state differs refuses here, at its hash check).
 pub fn seek(contents: &Contents, sim: &mut Simulation) -> anyhow::Result<u64> {
-    use incise_server::keyframe::{edit_from_message, keyframe_from_message};
+    use incise_convert::keyframe::{edit_from_message, keyframe_from_message};
     let Some(message) = &contents.keyframe else { return Ok(0) };
     let keyframe = keyframe_from_message(message).map_err(anyhow::Error::msg)?;
     for edit in contents.edits.iter().take_while(|e| e.frame <= keyframe.frame) {
@@ -168,7 +168,7 @@ pub fn replay(
             .iter()
             .filter_map(|p| RawToolPose::try_from(p).ok())
             .filter_map(|raw| CheckedPose::verified(&raw).ok())
-            .map(|pose| incise_server::physics::tool_input(&pose))
+            .map(|pose| incise_convert::tools::tool_input(&pose))
             .collect();
         let inputs = StepInputs { tools, ..StepInputs::default() };
         let diverged = |frames: u64, what: String, deviation: f64| Outcome {

@@ -2,9 +2,9 @@
 //! changed) is refused with an error when it is decoded or restored, or restores into a
 //! simulation that then steps; it never panics.
 
+use incise_convert::keyframe::{edit_from_message, keyframe_from_message};
 use incise_protocol::v1;
 use incise_replay::simulation;
-use incise_server::keyframe::{edit_from_message, keyframe_from_message};
 use incise_sim::StepInputs;
 use prost::Message;
 use std::path::Path;

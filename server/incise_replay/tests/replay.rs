@@ -145,7 +145,7 @@ fn a_recorded_demo_replays_bit_for_bit_and_a_changed_frame_is_found() {
 /// so it replays bit for bit from a folder where the scene's relative paths lead nowhere.
 #[test]
 fn a_recording_carries_its_volume_and_replays_anywhere() {
-    use incise_server::physics::{frame_record, frame_stats};
+    use incise_convert::frame::{frame_record, frame_stats};
     let scene_file =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/scenes/liver_13k.toml");
     let toml = std::fs::read_to_string(&scene_file).unwrap();

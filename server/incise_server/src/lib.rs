@@ -15,7 +15,6 @@
 //!   `--stop-with-parent`, the end of the process that started it ([`lifetime`]).
 
 pub mod demo;
-pub mod keyframe;
 pub mod lifetime;
 pub mod network;
 pub mod physics;

@@ -3,14 +3,12 @@
 //! statistics and cuts, and hands the recorder (when recording) each frame's record.
 
 use crate::network::{Outbox, Outgoing};
+use incise_convert::frame::{cut_event, frame_record, frame_stats, tool_flags};
+use incise_convert::tools::tool_input;
 use incise_haptics::{LoopShared, ToolSnapshot};
-use incise_protocol::check::CheckedPose;
 use incise_protocol::raw::RawToolPose;
-use incise_protocol::v1::{self, ForceFlag};
-use incise_record::{Record, RecordHandle, SurfaceFrame, ToolLook, ToolShape};
-use incise_sim::config::ShapeSpec;
-use incise_sim::{Frame, SceneConfig, Simulation, StepInputs, ToolInput};
-use incise_tool::{Primitive, ToolPose};
+use incise_record::{Record, RecordHandle, SurfaceFrame};
+use incise_sim::{Frame, Simulation, StepInputs, ToolInput};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -189,47 +187,6 @@ impl GeometryClock {
     }
 }
 
-/// How each of the scene's tools is drawn in a recording: its outer shape (a mesh file's tool
-/// as its bounding box).
-#[must_use]
-pub fn tool_looks(config: &SceneConfig) -> Vec<ToolLook> {
-    config
-        .tools
-        .iter()
-        .map(|t| {
-            let shape = match &t.outer {
-                ShapeSpec::Shape(shape) => match shape.primitive() {
-                    Some(Primitive::Sphere { radius }) => {
-                        let (lo, hi) = shape.bounds();
-                        ToolShape::Sphere {
-                            centre: std::array::from_fn(|i| f64::midpoint(lo[i], hi[i])),
-                            radius,
-                        }
-                    }
-                    Some(Primitive::Capsule { radius, length }) => {
-                        let (lo, _) = shape.bounds();
-                        ToolShape::Capsule {
-                            start: [lo[0] + radius, lo[1] + radius, lo[2] + radius],
-                            radius,
-                            length,
-                        }
-                    }
-                    _ => {
-                        let (min, max) = shape.bounds();
-                        ToolShape::Box { min, max }
-                    }
-                },
-                // Read by the scene reader before a simulation is built; a unit box stands in.
-                ShapeSpec::Mesh { offset, .. } => ToolShape::Box {
-                    min: offset.map(|c| c - 0.005),
-                    max: offset.map(|c| c + 0.005),
-                },
-            };
-            ToolLook { name: t.name.clone(), shape }
-        })
-        .collect()
-}
-
 /// Each tool's newest pose (checked where it entered: the haptic loop's hand-off keeps only
 /// usable ones), and the poses as received (for the recording).
 fn newest_poses(shared: &LoopShared, tools: usize) -> (Vec<ToolInput>, Vec<RawToolPose>) {
@@ -241,81 +198,16 @@ fn newest_poses(shared: &LoopShared, tools: usize) -> (Vec<ToolInput>, Vec<RawTo
         .unzip()
 }
 
-/// The step's input for a checked pose, without another check: its numbers exactly as the
-/// check left them. A replay converts recorded poses with this same function (after checking
-/// them, as it reads them from a file), so that it steps with the very inputs the server did.
-#[must_use]
-pub fn tool_input(pose: &CheckedPose) -> ToolInput {
-    let tool_pose = ToolPose::restored(pose.position, pose.orientation, pose.gripper_angle);
-    ToolInput { tool: pose.tool_id as usize, pose: tool_pose }
-}
-
 /// Hands the recorder what a replay needs beyond `frame`'s record: the topology change it made,
 /// and the keyframe when it is a keyframe frame ([`Simulation::is_keyframe`]).
 pub fn record_state(recorder: &RecordHandle, sim: &Simulation, frame: &Frame) {
-    if let Some(edit) = crate::keyframe::edit_message(frame) {
+    if let Some(edit) = incise_convert::keyframe::edit_message(frame) {
         recorder.record(Record::Edit(edit, frame.time));
     }
     if sim.is_keyframe(frame.index) {
-        let keyframe = crate::keyframe::keyframe_message(&sim.keyframe());
+        let keyframe = incise_convert::keyframe::keyframe_message(&sim.keyframe());
         recorder.record(Record::Keyframe(Box::new(keyframe), frame.time));
     }
-}
-
-/// What the recording keeps of a frame: the poses it used, each tool's force and contact, the
-/// hash of the state it left, its statistics.
-#[must_use]
-pub fn frame_record(frame: &Frame, used: &[RawToolPose], stats: v1::FrameStats) -> v1::FrameRecord {
-    let vec3 = |v: [f64; 3]| Some(v1::Vec3 { x: v[0], y: v[1], z: v[2] });
-    let tools = frame
-        .surgical
-        .tools
-        .iter()
-        .enumerate()
-        .filter(|(_, t)| t.pose.is_some())
-        .map(|(i, t)| v1::ToolState {
-            tool_id: i as u32,
-            force: vec3(t.linearisation.force),
-            torque: vec3(t.linearisation.torque),
-            flags: tool_flags(frame, i),
-            contact_points: t.contact_points as u32,
-            held_points: t.held_points as u32,
-            proxy: t.proxy.map(|p| v1::Pose::of(p.position(), p.rotation())),
-        })
-        .collect();
-    v1::FrameRecord {
-        frame: frame.index,
-        sim_time_s: frame.time,
-        poses: used.iter().map(v1::ToolPose::from).collect(),
-        tools,
-        state_hash: frame.state_hash,
-        stats: Some(stats),
-    }
-}
-
-/// A cut `frame` made, as its message.
-#[must_use]
-pub fn cut_event(frame: &Frame, cut: &incise_sim::CutEvent) -> v1::CutEvent {
-    v1::CutEvent {
-        frame: frame.index,
-        tool_id: cut.tool as u32,
-        voxels_removed: cut.voxels_removed as u32,
-        links_severed: cut.links_severed as u32,
-        tets_removed: cut.tets_removed as u32,
-    }
-}
-
-/// Tool `i`'s force flags at `frame`: in contact, cutting.
-fn tool_flags(frame: &Frame, i: usize) -> u32 {
-    let tool = &frame.surgical.tools[i];
-    let mut flags = 0;
-    if tool.contact_points > 0 || tool.held_points > 0 {
-        flags |= ForceFlag::InContact as u32;
-    }
-    if frame.surgical.cuts.iter().any(|c| c.tool == i) {
-        flags |= ForceFlag::Cutting as u32;
-    }
-    flags
 }
 
 /// Every tool's snapshot to the haptic loop, and the tool statistics.
@@ -345,31 +237,6 @@ fn hand_over(frame: &Frame, shared: &LoopShared, stats: &PhysicsStats) {
     }
     let removed = frame.counters.voxels_removed + frame.counters.tets_removed;
     stats.removed.fetch_add(removed as u64, Ordering::Relaxed);
-}
-
-/// A frame's statistics: its stage times, what it touched and cut, the surface's size, and
-/// `rate` (frames per second of wall time).
-#[must_use]
-pub fn frame_stats(frame: &Frame, sim: &Simulation, wall: Duration, rate: f64) -> v1::FrameStats {
-    let c = &frame.counters;
-    let ms = |ns: u64| ns as f64 * 1e-6;
-    v1::FrameStats {
-        frame: frame.index,
-        sim_time_s: frame.time,
-        frame_ms: wall.as_secs_f64() * 1e3,
-        contact_ms: ms(c.contact_ns),
-        cut_ms: ms(c.cut_ns),
-        grid_ms: ms(c.grid_ns),
-        remesh_ms: ms(c.remesh_ns),
-        mechanics_ms: ms(c.mechanics_ns),
-        contact_points: c.contact_points as u32,
-        voxels_removed: c.voxels_removed as u32,
-        links_severed: c.links_severed as u32,
-        tets_removed: c.tets_removed as u32,
-        triangles: sim.surface().map_or(0, incise_sim::OrganSurface::triangle_count) as u32,
-        frame_rate_hz: rate,
-        solver_iterations: c.solver_iterations as u32,
-    }
 }
 
 #[cfg(test)]

@@ -274,7 +274,8 @@ pub fn start(scene: &Scene, file: &str, options: &Options) -> anyhow::Result<Run
     let transports = Arc::new(ServerSide { zenoh, iceoryx2 });
     let stop = Arc::new(AtomicBool::new(false));
     let dt = config.dt();
-    let recorder = start_recorder(options, keys.scene(), &physics::tool_looks(config), &shared)?;
+    let recorder =
+        start_recorder(options, keys.scene(), &incise_convert::tools::tool_looks(config), &shared)?;
     let network =
         Network::start(Arc::clone(&transports)).context("cannot start the network runtime")?;
     let mut threads = Vec::new();

@@ -91,7 +91,7 @@ fn run() -> anyhow::Result<bool> {
             "<the recording's scene>",
             &base.unwrap_or_default(),
         )
-        .map(|s| incise_server::physics::tool_looks(&s.config))
+        .map(|s| incise_convert::tools::tool_looks(&s.config))
         .unwrap_or_default();
         let mut rrd = incise_record::RerunLog::save(out, &tools).map_err(anyhow::Error::msg)?;
         let written = incise_replay::render(

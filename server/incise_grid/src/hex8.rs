@@ -67,7 +67,7 @@ impl Mat24 {
     /// `self · v` for a symmetric matrix: the sum of `v[c]` times row `c` (= column `c`), a
     /// sequence of 24-wide fused multiply-adds (`mul_add`: one rounding, the same bits from an FMA
     /// instruction or the software fallback) the compiler vectorises, in a fixed order.
-    /// About four times faster than [`Mat24::mul_vec`]; wrong for a non-symmetric matrix.
+    /// Several times faster than [`Mat24::mul_vec`]; wrong for a non-symmetric matrix.
     // Always inlined: the caller may be compiled for wider vector instructions (incise_fem's
     // run-time dispatch), and only an inlined copy gets them.
     #[allow(clippy::inline_always)]

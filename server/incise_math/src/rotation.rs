@@ -252,7 +252,7 @@ fn iterate<T: Lane>(a: &Matrix<T>, q: &Quaternion<T>, r: &Matrix<T>) -> Iteratio
     //
     // Plain loops, not `array::from_fn` or `map`: on vector lanes this runs under a run-time
     // target feature, and a closure the compiler leaves out of line runs without it, turning
-    // every lane operation into a call (the step ran 1.8× slower when that happened).
+    // every lane operation into a call (which slowed the whole step markedly when it happened).
     let mut b: Matrix<T> = *a;
     for (i, row) in b.iter_mut().enumerate() {
         for (j, bij) in row.iter_mut().enumerate() {

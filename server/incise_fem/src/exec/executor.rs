@@ -17,8 +17,7 @@ use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 /// Below this many elements (or nodes, for the per-node passes) a second thread costs more than
-/// it saves (measured: scene B2, 528 elements, is faster on one thread; B3, 3,960, a third faster
-/// on two).
+/// it saves: scene B2 (528 elements) runs faster on one thread, B3 (3,960) faster on two.
 pub(crate) const PARALLEL_MIN: usize = 1_500;
 
 /// How an idle worker (and a thread waiting for a worker) passes the time between jobs.
@@ -99,11 +98,10 @@ impl Executor {
 
     /// The executor for a process that also runs a 1 kHz real-time thread (the server's haptic
     /// loop): one thread fewer than the cores, at least one, and workers that sleep when idle,
-    /// so that thread always finds a core. Measured by `incise-bench coexist` on two cores (scene
-    /// B3, three runs of 4 s): a probe thread waking every millisecond keeps a period jitter p99
-    /// of 85–211 µs beside the physics on one thread (60–98 µs alone), and 432–686 µs beside
-    /// the physics on two, spinning or sleeping; the physics runs 630–700 steps/s on one thread
-    /// against 750–1,070 on two.
+    /// so that thread always finds a core: on two cores, a probe thread waking every millisecond
+    /// beside the physics on one thread keeps a period jitter close to its jitter alone, and
+    /// several times worse beside the physics on two, for a physics only somewhat slower on one
+    /// (`incise-bench coexist`; figures in `docs/benchmarks.md`).
     #[must_use]
     pub fn beside_realtime_thread() -> Self {
         let cores = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);

@@ -21,19 +21,19 @@ use crate::ode::LinearSolver;
 use incise_math::Vec3;
 use incise_math::mat3::Mat3;
 
-/// The cost of refactorising, in CG iterations with the factor as preconditioner. Measured here:
-/// a numeric factorisation takes 40–50 triangular solves on B1, B2, B3 and a 33×22×18 block (the
-/// ratio hardly moves with size: bigger supernodes run the factorisation faster), and an iteration
-/// adds the operator product to its solve. A count, not a clock, so the choice is the same on every
+/// The cost of refactorising, in CG iterations with the factor as preconditioner: a numeric
+/// factorisation costs a few dozen triangular solves on the block scenes, a ratio that hardly
+/// moves with size (bigger supernodes run the factorisation faster), and an iteration adds the
+/// operator product to its solve. A count, not a clock, so the choice is the same on every
 /// run and frames stay bit-identical.
 pub const REFRESH_COST: usize = 30;
 
 /// How long (simulated seconds) block-Jacobi blocks serve before they are rebuilt with the
 /// current rotations. Any symmetric positive definite blocks precondition correctly (CG stops at
 /// the same tolerance); stale ones only cost iterations, and over 8 ms the rotations hardly move:
-/// at 1 ms, B2 and B3 take the same iterations per step (2.7, 4.9) with blocks rebuilt every
-/// step or every 8th, and run 23 % faster (building the blocks is an element loop, a scatter and
-/// an inversion per node). At 10 ms they are rebuilt every step, as before.
+/// at 1 ms, B2 and B3 take the same iterations per step with blocks rebuilt every step or every
+/// 8th, and run faster (building the blocks is an element loop, a scatter and an inversion per
+/// node). At 10 ms they are rebuilt every step, as before.
 const JACOBI_MAX_AGE: f64 = 8e-3;
 
 /// An implicit step's right-hand side, `h (node + Σ f(x) + s·K v)`.

@@ -2,8 +2,8 @@
 //!
 //! faer's solve visits the supernodes one after another. In a nested-dissection order the two
 //! halves below the top separator are independent, so these substitutions run them on two threads
-//! (B3's `f32` factor: 2.3 ms on one thread, 1.2 ms on two); on one thread they are as fast as
-//! faer's (B2: 125 against 131 µs). They are the plain column-oriented loops: the off-diagonal
+//! (nearly twice as fast on B3's `f32` factor); on one thread they are as fast as faer's. They
+//! are the plain column-oriented loops: the off-diagonal
 //! block of a supernode is dense with one shared row pattern, so the forward step is an axpy per
 //! column into a contiguous buffer and the back step a dot product per column, both vectorisable.
 //! The dot products sum in eight fixed lanes, so results do not depend on the build's vector width.
@@ -12,8 +12,8 @@ use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 use std::ops::{Add, Div, Mul, Sub};
 
 /// Factors with fewer entries are solved on one thread: waking the second costs more than it saves
-/// below this (B1's 56k-entry factor took 16 µs on one thread and 52 µs on two; B3's 5.4M took 2.3
-/// ms and 1.2 ms). The arithmetic is the same either way.
+/// below this (B1's factor solves slower on two threads, B3's faster). The arithmetic is the same
+/// either way.
 const PARALLEL_ENTRIES: usize = 1_000_000;
 
 /// The arithmetic the substitutions need (`f32` and `f64`).

@@ -7,8 +7,8 @@
 //! is then six 4-wide fused multiply-adds per row of the rotation ([`rotate`]) instead of 72
 //! scalar operations; gather, rotations and scatter run in one inlined loop, and only the 24×24
 //! product ([`product_pair`]) is a separate function: inlined into the larger loop, the compiler
-//! kept its 48 accumulators in scalar registers. On scene B3 at 1 ms (`profile_block`) the
-//! corner-major loop ran 650 steps/s, this one 935.
+//! kept its 48 accumulators in scalar registers (`profile_block` on scene B3 measures the
+//! difference: `docs/notebook/code-comment-figures.md`).
 //!
 //! **Determinism.** Every sum is written as explicit fused multiply-adds in a fixed order, never
 //! reordered: the AVX2 instructions and the fallback's correctly rounded `mul_add` lane by lane
@@ -19,7 +19,7 @@
 //! **Full cells** do not use the dense product at all: their stiffness is sparse in the
 //! Walsh–Hadamard basis of the corners ([`crate::forcefield::hex::walsh`]), 45 of 576 entries, and that product is
 //! inlined into the element loop (few accumulators, nothing to spill). The dense product serves
-//! partially filled and superimposed cells. B3 at 1 ms: 940 → 1,070 steps/s.
+//! partially filled and superimposed cells.
 
 use incise_grid::hex8::Mat24;
 use incise_math::Vec3;

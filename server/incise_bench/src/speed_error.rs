@@ -100,8 +100,8 @@ pub struct SpeedErrorArgs {
     /// Cells per axis of scene B's fine reference: with the coarse one, the pulled corner is
     /// extrapolated to h → 0 (Richardson, error ∝ h² for trilinear hexahedra, h the largest cell
     /// edge) and scene B's rows are measured against that. The default 44,30,24 (105,000
-    /// unknowns) took 14–20 s in release on a busy 2-core machine, about 2.5 times the coarse
-    /// solve (which took 5–8 s there, 1.7–3.3 s on an idle one).
+    /// unknowns) takes a few times as long as the coarse solve: seconds to tens of seconds in
+    /// release on two cores.
     #[arg(long, value_delimiter = ',', default_value = "44,30,24")]
     richardson_cells: Vec<usize>,
     /// Skip the fine reference (quick runs): scene B's rows are measured against the coarse one.

@@ -187,6 +187,9 @@ pub(crate) struct ToolRig {
     previous: Option<Pose>,
     /// Its proxy's pose.
     proxy: Option<Pose>,
+    /// Where its proxy started the step under way (`None`: placed afresh): the carry measures
+    /// how far tissue came into it against that.
+    step_start: Option<Pose>,
     /// The penalty on tissue overlapping its proxy (the damping resolved from the implicit step
     /// when the tool names none).
     contact: ContactSettings,
@@ -322,6 +325,7 @@ impl Surgery {
                     pose: None,
                     previous: None,
                     proxy: None,
+                    step_start: None,
                     contact: ContactSettings {
                         // An explicit step integrates the penalty as it does the coupling: no
                         // stiffer than it keeps stable on the lightest node. The walls of a

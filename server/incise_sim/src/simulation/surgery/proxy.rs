@@ -14,7 +14,7 @@ use incise_tool::proxy::{
     Facet, Obstacles, PENETRATION_TOLERANCE, Push, Reach, Touch, advance, place, push,
     surely_at_least, touches, triangle_gap,
 };
-use incise_tool::{Pose, Shape};
+use incise_tool::{Pose, Primitive, Shape};
 
 /// How far from the proxy a triangle still counts as touched (m): a few times the contact
 /// search's tolerance, so a contact the search left just short is taken, and far below a voxel.
@@ -123,6 +123,7 @@ impl ToolRig {
         if !self.has_proxy() {
             return None;
         }
+        self.step_start = from;
         let start = from.unwrap_or(device);
         let swept = region(&self.outer, &[&start, &device], SKIN);
         let mut facets = view.facets(swept);
@@ -320,7 +321,11 @@ impl ToolRig {
     /// opposite sides (the walls of a cut on a blade) holds it where it is. Then any triangle
     /// around it (`facets`) that it now overlaps by more than the contact's tolerance (tissue
     /// that turned as it moved, or came from beside it) pushes it out along that triangle's
-    /// normal, one after the other, unless it overlapped that much already (a cut's wall).
+    /// normal, one after the other. A triangle that overlapped it already is the wall of its
+    /// tool's cut or tissue its tool holds, and is left as it is; for a ball or a capsule that
+    /// neither cuts nor holds, an overlap can only be tissue that came in, which pushes the
+    /// proxy out by what it reaches deeper than when the step began, so that no overlap grows
+    /// from step to step.
     pub(crate) fn carry(
         &mut self,
         touches: &[Touch],
@@ -348,21 +353,45 @@ impl ToolRig {
             proxy
         };
         let reach = Reach::of(&self.outer);
+        // Tissue may overlap a proxy for two reasons only: it is the wall of the cut the tool's
+        // own blade made, or the tool holds it. Otherwise an overlap is tissue that came in, and
+        // it may come no deeper than it was when the step began. That needs the gap exact (a
+        // ball's, a capsule's): the branch and bound's gap to a triangle lying flush on a face
+        // moves by its sampling from one pose to the next, and the rule would turn that into
+        // pushes; such a shape keeps the older rule, an overlap found is left to the penalty.
+        let exact = matches!(
+            self.outer.primitive(),
+            Some(Primitive::Sphere { .. } | Primitive::Capsule { .. })
+        );
+        let start =
+            self.step_start.filter(|_| exact && !self.cuts() && self.grasp.held().is_empty());
         for f in facets {
-            let before = f.corners.map(|p| proxy.tool_from_grid(p));
-            if !surely_at_least(&self.outer, &before, -PENETRATION_TOLERANCE, &reach)
-                && triangle_gap(&self.outer, &before).distance < -PENETRATION_TOLERANCE
-            {
-                continue;
-            }
+            // The least gap the triangle may have, and the gap a push leaves it at.
+            let (floor, target) = if let Some(start) = start {
+                let was =
+                    triangle_gap(&self.outer, &f.corners.map(|p| start.tool_from_grid(p))).distance;
+                if was >= -PENETRATION_TOLERANCE {
+                    (-PENETRATION_TOLERANCE, -0.5 * PENETRATION_TOLERANCE)
+                } else {
+                    (was - PENETRATION_TOLERANCE, was)
+                }
+            } else {
+                let before = f.corners.map(|p| proxy.tool_from_grid(p));
+                if !surely_at_least(&self.outer, &before, -PENETRATION_TOLERANCE, &reach)
+                    && triangle_gap(&self.outer, &before).distance < -PENETRATION_TOLERANCE
+                {
+                    continue;
+                }
+                (-PENETRATION_TOLERANCE, -0.5 * PENETRATION_TOLERANCE)
+            };
             let local = now(&f.vertices).map(|p| pose.tool_from_grid(p));
-            if surely_at_least(&self.outer, &local, -PENETRATION_TOLERANCE, &reach) {
+            if surely_at_least(&self.outer, &local, floor, &reach) {
                 continue;
             }
             let g = triangle_gap(&self.outer, &local);
-            if g.distance < -PENETRATION_TOLERANCE {
+            if g.distance < floor {
                 let out = pose.rotate(g.normal);
-                let depth = -g.distance - 0.5 * PENETRATION_TOLERANCE;
+                let depth = target - g.distance;
                 pose = pose
                     .with_position(std::array::from_fn(|k| pose.position()[k] - depth * out[k]));
             }

@@ -523,7 +523,8 @@ pub fn resident_mb() -> Option<f64> {
 const FORCE_LOG: usize = 8192;
 
 /// The simulated time between two Foxglove scene updates in a recording (s): each repeats the
-/// whole surface in Foxglove's verbose points (300 KB on the 13k liver), so twice a second; the
+/// whole surface in Foxglove's verbose points (hundreds of kilobytes on the 13k liver), so twice
+/// a second; the
 /// `.rrd` and `/incise/surface` carry the surface at the geometry rate.
 const SCENE_INTERVAL_S: f64 = 0.5;
 

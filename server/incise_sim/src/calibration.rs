@@ -22,12 +22,12 @@ use incise_fem::{ElementKind, Executor, Formulation, HexForceField, HexModel};
 use incise_grid::{BranchedGrid, LabelVolume, MaterialTable};
 
 /// The reference level is the finest with at most this many unknowns: the 109,201-voxel liver's
-/// level 0 (364,668) takes about 7 s with the multigrid on two cores, building its grid aside.
+/// level 0 (364,668) is within it, a solve of seconds with the multigrid on two cores.
 pub const REFERENCE_MAX_DOFS: usize = 500_000;
 
 /// Levels with at most this many unknowns are solved with a sparse Cholesky factor (the
-/// 13,648-voxel liver's level 0, 50,184 unknowns: 3.2 s), finer ones with the multigrid (the
-/// factor of the 109,201-voxel liver's level 0 would take about 3 minutes).
+/// 13,648-voxel liver's level 0, 50,184 unknowns, among them), finer ones with the multigrid
+/// (the factor of the 109,201-voxel liver's level 0 would take minutes).
 pub const CHOLESKY_MAX_DOFS: usize = 60_000;
 
 /// Coarser levels in a multigrid hierarchy below the level it solves (two: the fastest setting

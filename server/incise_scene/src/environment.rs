@@ -24,7 +24,7 @@ pub struct EnvironmentError {
     /// What it holds.
     pub value: String,
     /// What it should hold.
-    pub expected: &'static str,
+    pub expected: String,
 }
 
 /// `spec` with what the environment sets in its place.
@@ -48,7 +48,7 @@ fn exec_from(
                 || EnvironmentError {
                     variable: THREADS,
                     value: value.to_owned(),
-                    expected: "a thread count from 1 to 256",
+                    expected: format!("a thread count from 1 to {MAX_THREADS}"),
                 },
             )
         })
@@ -58,7 +58,7 @@ fn exec_from(
             let us = value.trim().parse::<u64>().map_err(|_| EnvironmentError {
                 variable: LINGER_US,
                 value: value.to_owned(),
-                expected: "a whole number of microseconds (0: idle workers sleep)",
+                expected: "a whole number of microseconds (0: idle workers sleep)".to_owned(),
             })?;
             Ok(if us == 0 { Idle::Sleep } else { Idle::Spin(Duration::from_micros(us)) })
         })

@@ -351,10 +351,16 @@ impl Surface {
     /// The 8 cubes having voxel `v` as a corner.
     #[must_use]
     pub fn cubes_of_voxel(&self, v: u32) -> [u32; 8] {
-        let x = self.voxel_coords(v);
+        Self::cubes_around(self.voxel_coords(v)).map(|c| self.cube_index(c))
+    }
+
+    /// Coordinates of the 8 cubes having the voxel at coordinates `x` as a corner: `x − o` for
+    /// each corner offset `o` of a cube, so all lie in `x − 1 ..= x`.
+    #[must_use]
+    pub fn cubes_around(x: [i64; 3]) -> [[i64; 3]; 8] {
         std::array::from_fn(|c| {
             let o = incise_grid::hex8::corner(c);
-            self.cube_index(std::array::from_fn(|a| x[a] - o[a] as i64))
+            std::array::from_fn(|a| x[a] - o[a] as i64)
         })
     }
 

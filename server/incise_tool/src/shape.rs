@@ -137,21 +137,10 @@ impl Shape {
     /// normal there (the distance's gradient; on the medial axis of a box, the nearest face's).
     #[must_use]
     pub fn distance(&self, q: Vec3) -> (f64, Vec3) {
-        let p: Vec3 = std::array::from_fn(|k| q[k] - self.offset[k]);
-        let primitive = match &self.kind {
-            Kind::Primitive(primitive) => *primitive,
-            Kind::Mesh(mesh) => return mesh.distance(p),
-        };
-        match primitive {
-            Primitive::Sphere { radius } => ball(p, radius),
-            Primitive::Capsule { radius, length } => {
-                ball([p[0], p[1], p[2] - p[2].clamp(0.0, length)], radius)
-            }
-            Primitive::Cuboid { half_extents } => cuboid(p, half_extents),
-            Primitive::Blade { length, height, thickness } => cuboid(
-                [p[0], p[1], p[2] - 0.5 * height],
-                [0.5 * length, 0.5 * thickness, 0.5 * height],
-            ),
+        match self.local(q) {
+            (p, Local::Ball(radius)) => ball(p, radius),
+            (p, Local::Box(h)) => cuboid(p, h),
+            (p, Local::Mesh(mesh)) => mesh.distance(p),
         }
     }
 
@@ -159,20 +148,30 @@ impl Shape {
     /// [`Shape::distance`]'s, without the normal.
     #[must_use]
     pub fn signed_distance(&self, q: Vec3) -> f64 {
+        match self.local(q) {
+            (p, Local::Ball(radius)) => ball(p, radius).0,
+            (p, Local::Box(h)) => cuboid_distance(p, h),
+            (p, Local::Mesh(mesh)) => mesh.distance(p).0,
+        }
+    }
+
+    /// Tool-frame point `q` where the shape's distance is taken, and what it is taken to there.
+    fn local(&self, q: Vec3) -> (Vec3, Local<'_>) {
         let p: Vec3 = std::array::from_fn(|k| q[k] - self.offset[k]);
         let primitive = match &self.kind {
             Kind::Primitive(primitive) => *primitive,
-            Kind::Mesh(mesh) => return mesh.distance(p).0,
+            Kind::Mesh(mesh) => return (p, Local::Mesh(mesh)),
         };
         match primitive {
-            Primitive::Sphere { radius } => ball(p, radius).0,
+            Primitive::Sphere { radius } => (p, Local::Ball(radius)),
+            // A capsule is the ball about the nearest point of its axis.
             Primitive::Capsule { radius, length } => {
-                ball([p[0], p[1], p[2] - p[2].clamp(0.0, length)], radius).0
+                ([p[0], p[1], p[2] - p[2].clamp(0.0, length)], Local::Ball(radius))
             }
-            Primitive::Cuboid { half_extents } => cuboid_distance(p, half_extents),
-            Primitive::Blade { length, height, thickness } => cuboid_distance(
+            Primitive::Cuboid { half_extents } => (p, Local::Box(half_extents)),
+            Primitive::Blade { length, height, thickness } => (
                 [p[0], p[1], p[2] - 0.5 * height],
-                [0.5 * length, 0.5 * thickness, 0.5 * height],
+                Local::Box([0.5 * length, 0.5 * thickness, 0.5 * height]),
             ),
         }
     }
@@ -299,6 +298,16 @@ impl Shape {
         }
         false
     }
+}
+
+/// What a shape's distance is taken to, about the origin of [`Shape::local`]'s point.
+enum Local<'a> {
+    /// A ball of this radius.
+    Ball(f64),
+    /// A box of these half extents.
+    Box(Vec3),
+    /// A closed mesh.
+    Mesh(&'a MeshShape),
 }
 
 /// The signed distance and normal of a ball of `radius` about the origin.

@@ -31,9 +31,9 @@ pub const REFRESH_COST: usize = 30;
 /// How long (simulated seconds) block-Jacobi blocks serve before they are rebuilt with the
 /// current rotations. Any symmetric positive definite blocks precondition correctly (CG stops at
 /// the same tolerance); stale ones only cost iterations, and over 8 ms the rotations hardly move:
-/// at 1 ms, B2 and B3 take the same iterations per step with blocks rebuilt every step or every
-/// 8th, and run faster (building the blocks is an element loop, a scatter and an inversion per
-/// node). At 10 ms they are rebuilt every step, as before.
+/// with 1 ms steps, blocks rebuilt every eighth step cost no more iterations than blocks rebuilt
+/// every step, and save the rebuilding (an element loop, a scatter and an inversion per node;
+/// `docs/notebook/code-comment-figures.md`). At 10 ms they are rebuilt every step.
 const JACOBI_MAX_AGE: f64 = 8e-3;
 
 /// An implicit step's right-hand side, `h (node + Σ f(x) + s·K v)`.

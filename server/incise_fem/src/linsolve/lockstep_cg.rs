@@ -27,8 +27,9 @@ use incise_math::mat3::{Mat3, mul_vec};
 use std::ops::Range;
 use std::sync::{Mutex, MutexGuard, RwLock};
 
-/// Below this many elements the second thread is not worth waking (at 1 ms, scene B1's 140
-/// elements gain from it a little, a 72-element block loses a little).
+/// Below this many elements the second thread is not worth waking: scene B1, just above it,
+/// gains from it a little, a block half its size loses a little
+/// (`docs/notebook/code-comment-figures.md`).
 const TEAM_MIN: usize = 128;
 
 /// A node part's vectors (`z` is shared separately: every thread reads all of it).

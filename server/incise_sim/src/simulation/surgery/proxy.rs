@@ -368,8 +368,12 @@ impl ToolRig {
         for f in facets {
             // The least gap the triangle may have, and the gap a push leaves it at.
             let (floor, target) = if let Some(start) = start {
-                let was =
-                    triangle_gap(&self.outer, &f.corners.map(|p| start.tool_from_grid(p))).distance;
+                let then = f.corners.map(|p| start.tool_from_grid(p));
+                let was = if surely_at_least(&self.outer, &then, -PENETRATION_TOLERANCE, &reach) {
+                    0.0
+                } else {
+                    triangle_gap(&self.outer, &then).distance
+                };
                 if was >= -PENETRATION_TOLERANCE {
                     (-PENETRATION_TOLERANCE, -0.5 * PENETRATION_TOLERANCE)
                 } else {

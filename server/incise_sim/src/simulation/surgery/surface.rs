@@ -278,6 +278,7 @@ impl OrganSurface {
                     .map(|&v| surface.voxel_coords(vertices[v as usize].voxel))
                     .collect();
                 let Some(first) = owners.first() else { return };
+                // `Surface::cubes_around`: an owner's cubes lie in `x − 1 ..= x`.
                 let (mut from, mut to) = (first.map(|c| c - 1), *first);
                 for x in &owners {
                     for k in 0..3 {
@@ -291,10 +292,9 @@ impl OrganSurface {
                     o[0] + size[0] * (o[1] + size[1] * o[2])
                 };
                 let mut marked = vec![false; size.iter().product()];
-                for x in &owners {
-                    for corner in 0..8 {
-                        let o = incise_grid::hex8::corner(corner);
-                        marked[at(std::array::from_fn(|k| x[k] - o[k] as i64))] = true;
+                for &x in &owners {
+                    for c in Surface::cubes_around(x) {
+                        marked[at(c)] = true;
                     }
                 }
                 let triangles = surface.triangles();
